@@ -1,0 +1,144 @@
+"""Diffuse reflectance of layer stacks and of skin, at normal incidence.
+
+The quantity is the diffuse reflectance of a flat, uniformly lit patch with the specular surface
+reflection excluded and the entry Fresnel transmittance included:
+
+    R_diffuse = (1 - F0) R12(q = 0),     F0 = ((n - n_above) / (n + n_above))^2,
+
+which matched Monte Carlo for light skin to 0.1-4 % (MODEL.md 5.5).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+
+import jax
+import jax.numpy as jnp
+from jaxtyping import Array, ArrayLike, Float
+
+from . import chromophores as chrom
+from . import _validate
+from .adding import ADDING_MODES, Adding, stack_reflectance
+from .layers import BLOOD_OXYGENATION, EPIDERMIS_THICKNESS_MM, SKIN_IOR, Layer, skin_layers
+from .multipole import slab_response
+from .params import SkinParams
+
+
+def normal_fresnel_reflectance(n_inside: ArrayLike, n_outside: ArrayLike = 1.0) -> Float[Array, "..."]:
+    """Fresnel reflectance at normal incidence, ((n1 - n2) / (n1 + n2))^2."""
+    n_inside, n_outside = jnp.asarray(n_inside), jnp.asarray(n_outside)
+    return jnp.square((n_inside - n_outside) / (n_inside + n_outside))
+
+
+def stack_transfer(
+    layers: Sequence[Layer],
+    q: ArrayLike = 0.0,
+    *,
+    adding: Adding = "directional",
+    ior_above: ArrayLike = 1.0,
+    ior_below: ArrayLike = 1.0,
+) -> Float[Array, "..."]:
+    """R12(q): frequency-domain diffuse reflectance of a stack (top first), without entry Fresnel.
+
+    ``q`` (radial frequency, mm^-1) broadcasts against the layer fields. R12(0) is the total
+    diffuse reflectance for light already inside the top layer; its inverse Hankel transform is the
+    radial profile R(r) in mm^-2.
+    """
+    responses = []
+    for i, layer in enumerate(layers):
+        n_above = layers[i - 1].ior if i > 0 else ior_above
+        n_below = layers[i + 1].ior if i + 1 < len(layers) else ior_below
+        responses.append(
+            slab_response(
+                layer.absorption,
+                layer.reduced_scattering,
+                layer.thickness,
+                eta_top=layer.ior / n_above,
+                eta_bottom=layer.ior / n_below,
+                q=q,
+            )
+        )
+    return stack_reflectance(responses, adding)
+
+
+def _check_options(adding):
+    if adding not in ADDING_MODES:
+        raise _validate.SkinfitInputError(f"adding must be one of {', '.join(ADDING_MODES)}, got {adding!r}")
+
+
+def _check_stack(layers):
+    if isinstance(layers, Layer):
+        layers = [layers]
+    layers = list(layers)
+    if not layers or not all(isinstance(layer, Layer) for layer in layers):
+        raise _validate.SkinfitInputError("layers must be a non-empty sequence of skinfit.Layer, top first")
+    for layer in layers[:-1]:
+        t = layer.thickness
+        if _validate.is_concrete(t) and bool(jnp.any(jnp.isinf(t))):
+            raise _validate.SkinfitInputError("only the bottom layer may be semi-infinite (thickness=inf)")
+    return layers
+
+
+def layered_reflectance(
+    layers: Sequence[Layer],
+    *,
+    adding: Adding = "directional",
+    ior_above: ArrayLike = 1.0,
+    ior_below: ArrayLike = 1.0,
+) -> Float[Array, "..."]:
+    """Diffuse reflectance (1 - F0) R12(0) of a user-defined stack of layers (top first).
+
+    Args:
+        layers: ``skinfit.Layer`` objects, top first; only the last may be semi-infinite.
+        adding: ``"directional"`` (default) or ``"symmetric"`` (DJ2005-literal, for comparison).
+        ior_above: refractive index above the stack (air, 1.0).
+        ior_below: refractive index below a finite bottom layer.
+
+    Returns the broadcast shape of the layer fields (for example (..., n_wavelengths)).
+    """
+    layers = _check_stack(layers)
+    _check_options(adding)
+    r12 = stack_transfer(layers, 0.0, adding=adding, ior_above=ior_above, ior_below=ior_below)
+    return (1.0 - normal_fresnel_reflectance(layers[0].ior, ior_above)) * r12
+
+
+def diffuse_reflectance(
+    params: SkinParams,
+    wavelengths_nm: ArrayLike,
+    *,
+    adding: Adding = "directional",
+    blood_oxygenation: ArrayLike = BLOOD_OXYGENATION,
+    epidermis_thickness_mm: ArrayLike = EPIDERMIS_THICKNESS_MM,
+    ior: ArrayLike = SKIN_IOR,
+) -> Float[Array, "*batch n_wavelengths"]:
+    """Diffuse reflectance of skin at normal incidence (specular excluded, entry Fresnel included).
+
+    Args:
+        params: ``SkinParams``; fields of batch shape (...) broadcast.
+        wavelengths_nm: 1-D wavelengths in nm, within 250-1000 nm (the haemoglobin table).
+        adding: ``"directional"`` (default) or ``"symmetric"``.
+        blood_oxygenation: gamma, HbO2 fraction of the blood (DJ2006: 0.75).
+        epidermis_thickness_mm: epidermis thickness in mm (DJ2006: 0.25).
+        ior: refractive index of both layers (DJ2006: 1.4).
+
+    Returns:
+        Array of shape (..., n_wavelengths): (1 - F0) R12(q = 0).
+    """
+    lam = _checked_wavelengths(wavelengths_nm)
+    _check_skin_options(adding, blood_oxygenation, epidermis_thickness_mm, ior)
+    layers = skin_layers(
+        params, lam, blood_oxygenation=blood_oxygenation, epidermis_thickness_mm=epidermis_thickness_mm, ior=ior
+    )
+    r12 = stack_transfer(layers, 0.0, adding=adding)
+    return (1.0 - normal_fresnel_reflectance(jnp.asarray(ior)[..., None])) * r12
+
+
+def _checked_wavelengths(wavelengths_nm) -> jax.Array:
+    return _validate.wavelengths(wavelengths_nm, low=chrom.WAVELENGTH_RANGE_NM[0], high=chrom.WAVELENGTH_RANGE_NM[1])
+
+
+def _check_skin_options(adding, blood_oxygenation, epidermis_thickness_mm, ior):
+    _check_options(adding)
+    _validate.check_range("blood_oxygenation", blood_oxygenation, 0.0, 1.0)
+    _validate.check_range("epidermis_thickness_mm", epidermis_thickness_mm, 1e-9, 1e3, unit="mm")
+    _validate.check_range("ior", ior, 1.0, 3.0)

@@ -1,0 +1,1 @@
+"""Chromophore data tables shipped with skinfit (see README.md)."""
