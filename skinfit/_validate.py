@@ -39,7 +39,15 @@ def check_range(name: str, value, low: float, high: float, *, unit: str = "") ->
 
 
 def as_float_array(name: str, value, *, ndim: int | None = None) -> jax.Array:
-    """Convert to a floating JAX array (float64 unless the input is float32), with a clear error."""
+    """Convert to a floating JAX array, with a clear error.
+
+    Python scalars stay weakly typed, so they adopt the dtype of the arrays they meet (float32 inputs
+    compute in float32); NumPy and JAX arrays keep their floating dtype.
+    """
+    if isinstance(value, (int, float)) and not isinstance(value, bool):
+        if ndim not in (None, 0):
+            raise SkinfitInputError(f"{name} must be {ndim}-D, got a scalar")
+        return jnp.asarray(float(value))
     if is_concrete(value):
         try:
             arr = np.asarray(value)

@@ -153,21 +153,42 @@ def slab_response(
     )
 
 
+def _dipole_geometry(absorption, reduced_scattering, eta_top, thickness):
+    """Diffusion quantities, and the real and virtual source depths of the top-face dipole.
+
+    The real source depth is clamped to ``thickness`` exactly as in ``slab_response``, so that the
+    dipole is the leading (slowest-decaying in q) part of a finite slab's R+ as well.
+    """
+    coeff = diffusion_coefficients(absorption, reduced_scattering)
+    thickness = jnp.asarray(thickness)
+    z_real = jnp.minimum(coeff.source_depth, jnp.where(jnp.isinf(thickness), coeff.source_depth, thickness))
+    z_virtual = z_real + 4.0 * boundary_coefficient(eta_top) * coeff.diffusion
+    return coeff, z_real, z_virtual
+
+
+def dipole_transfer(absorption, reduced_scattering, eta_top, q=0.0, thickness=float("inf")):
+    """Frequency-domain R(q) of the top-face dipole, (alpha'/2) (e^{-k z_r} + e^{-k z_v})."""
+    coeff, z_real, z_virtual = _dipole_geometry(absorption, reduced_scattering, eta_top, thickness)
+    k = _wavenumber(coeff.sigma_tr_squared, q)
+    return 0.5 * coeff.albedo * (jnp.exp(-k * z_real) + jnp.exp(-k * z_virtual))
+
+
 def dipole_profile(
     absorption: ArrayLike,
     reduced_scattering: ArrayLike,
     eta_top: ArrayLike,
     radius_mm: ArrayLike,
+    thickness: ArrayLike = float("inf"),
 ) -> Float[Array, "..."]:
-    """Real-space R(r) in mm^-2 of a semi-infinite layer (Jensen et al. 2001 dipole).
+    """Real-space R(r) in mm^-2 of the top-face dipole (Jensen et al. 2001 for a semi-infinite layer).
 
-    The inverse Hankel transform of the semi-infinite ``slab_response(...).reflect_top``:
-    (alpha'/4 pi) sum over the real and virtual source of z (1 + sigma_tr rho) e^{-sigma_tr rho} / rho^3.
+    The exact inverse Hankel transform of ``dipole_transfer``, from
+    FT2D{z (1 + s rho) e^{-s rho} / rho^3} = 2 pi e^{-k z} with rho = sqrt(r^2 + z^2):
+    R(r) = (alpha'/4 pi) sum over the real and virtual source of z (1 + s rho) e^{-s rho} / rho^3,
+    s = sigma_tr.
     """
-    coeff = diffusion_coefficients(absorption, reduced_scattering)
+    coeff, z_real, z_virtual = _dipole_geometry(absorption, reduced_scattering, eta_top, thickness)
     sigma_tr = _wavenumber(coeff.sigma_tr_squared, 0.0)
-    z_real = coeff.source_depth
-    z_virtual = coeff.source_depth + 4.0 * boundary_coefficient(eta_top) * coeff.diffusion
     r2 = jnp.square(jnp.asarray(radius_mm))
 
     def pole(z):

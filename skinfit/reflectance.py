@@ -12,6 +12,7 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 
+import equinox as eqx
 import jax
 import jax.numpy as jnp
 from jaxtyping import Array, ArrayLike, Float
@@ -98,6 +99,11 @@ def layered_reflectance(
     """
     layers = _check_stack(layers)
     _check_options(adding)
+    return _layered_reflectance(layers, adding, jnp.asarray(ior_above), jnp.asarray(ior_below))
+
+
+@eqx.filter_jit
+def _layered_reflectance(layers, adding, ior_above, ior_below):
     r12 = stack_transfer(layers, 0.0, adding=adding, ior_above=ior_above, ior_below=ior_below)
     return (1.0 - normal_fresnel_reflectance(layers[0].ior, ior_above)) * r12
 
@@ -125,20 +131,39 @@ def diffuse_reflectance(
         Array of shape (..., n_wavelengths): (1 - F0) R12(q = 0).
     """
     lam = _checked_wavelengths(wavelengths_nm)
-    _check_skin_options(adding, blood_oxygenation, epidermis_thickness_mm, ior)
+    options = _skin_options(adding, blood_oxygenation, epidermis_thickness_mm, ior, like=(lam, params))
+    return _skin_reflectance(params, lam, adding, *options)
+
+
+@eqx.filter_jit
+def _skin_reflectance(params, lam, adding, blood_oxygenation, epidermis_thickness_mm, ior):
     layers = skin_layers(
         params, lam, blood_oxygenation=blood_oxygenation, epidermis_thickness_mm=epidermis_thickness_mm, ior=ior
     )
     r12 = stack_transfer(layers, 0.0, adding=adding)
-    return (1.0 - normal_fresnel_reflectance(jnp.asarray(ior)[..., None])) * r12
+    return (1.0 - normal_fresnel_reflectance(ior[..., None])) * r12
 
 
 def _checked_wavelengths(wavelengths_nm) -> jax.Array:
     return _validate.wavelengths(wavelengths_nm, low=chrom.WAVELENGTH_RANGE_NM[0], high=chrom.WAVELENGTH_RANGE_NM[1])
 
 
-def _check_skin_options(adding, blood_oxygenation, epidermis_thickness_mm, ior):
+def _skin_options(adding, blood_oxygenation, epidermis_thickness_mm, ior, *, like):
+    """Validate the skin-model options; return the numeric ones as arrays (traced, not static, under jit).
+
+    They take the floating dtype of ``like`` (wavelengths and parameters), so float32 inputs compute
+    in float32.
+    """
     _check_options(adding)
     _validate.check_range("blood_oxygenation", blood_oxygenation, 0.0, 1.0)
     _validate.check_range("epidermis_thickness_mm", epidermis_thickness_mm, 1e-9, 1e3, unit="mm")
     _validate.check_range("ior", ior, 1.0, 3.0)
+    dtype = jnp.result_type(*jax.tree_util.tree_leaves(like))
+    return tuple(
+        _validate.as_float_array(name, value).astype(dtype)
+        for name, value in (
+            ("blood_oxygenation", blood_oxygenation),
+            ("epidermis_thickness_mm", epidermis_thickness_mm),
+            ("ior", ior),
+        )
+    )

@@ -1,0 +1,191 @@
+"""The ``skinfit`` command line: spectra, profile tables and the demo job.
+
+Usage errors (bad arguments, out-of-range values) print one line and exit with status 2.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+from ._validate import SkinfitInputError
+from .adding import ADDING_MODES
+from .layers import BLOOD_OXYGENATION, EPIDERMIS_THICKNESS_MM, SKIN_IOR
+from .params import PRESET_NAMES, SkinParams, preset
+
+DEFAULT_WAVELENGTHS = "400:700:10"
+DEFAULT_RADII = "0.001:20:256"
+
+
+class _Parser(argparse.ArgumentParser):
+    def error(self, message):  # one line, exit 2 (argparse prints the whole usage by default)
+        self.exit(2, f"{self.prog}: error: {message}\n")
+
+
+def parse_wavelengths(text: str) -> np.ndarray:
+    """'START:STOP:STEP' (inclusive, nm), 'A,B,C' or a single value."""
+    try:
+        if ":" in text:
+            start, stop, step = (float(v) for v in text.split(":"))
+            if step <= 0 or stop < start:
+                raise ValueError
+            return np.arange(start, stop + 0.5 * step, step)
+        return np.array([float(v) for v in text.split(",")])
+    except ValueError:
+        raise SkinfitInputError(f"--wavelengths {text!r}: expected START:STOP:STEP, a list A,B,C or one value") from None
+
+
+def parse_radii(text: str) -> np.ndarray:
+    """'START:STOP:N' in mm: N radii, log-spaced if START > 0, else linear from 0."""
+    try:
+        start, stop, count = text.split(":")
+        start, stop, count = float(start), float(stop), int(count)
+        if count < 1 or stop <= start or start < 0:
+            raise ValueError
+    except ValueError:
+        raise SkinfitInputError(f"--radii {text!r}: expected START:STOP:N with 0 <= START < STOP and N >= 1") from None
+    return np.geomspace(start, stop, count) if start > 0 else np.linspace(start, stop, count)
+
+
+def _add_model_arguments(parser: argparse.ArgumentParser, wavelengths: str = DEFAULT_WAVELENGTHS) -> None:
+    group = parser.add_argument_group("skin parameters (a preset, explicit values, or a preset with overrides)")
+    group.add_argument("--preset", choices=PRESET_NAMES, help="built-in parameter set")
+    group.add_argument("--melanin", type=float, help="C_m, epidermal melanin volume fraction (0-1)")
+    group.add_argument("--melanin-blend", type=float, help="beta_m, eumelanin fraction of melanin (0-1)")
+    group.add_argument("--haemoglobin", type=float, help="C_h, dermal blood volume fraction (0-1)")
+    model = parser.add_argument_group("model options")
+    model.add_argument("--wavelengths", default=wavelengths, help=f"nm, START:STOP:STEP or A,B,C (default {wavelengths})")
+    model.add_argument("--adding", choices=ADDING_MODES, default="directional", help="layer adding (default directional)")
+    model.add_argument("--blood-oxygenation", type=float, default=BLOOD_OXYGENATION, help="HbO2 fraction (default 0.75)")
+    model.add_argument("--epidermis-thickness-mm", type=float, default=EPIDERMIS_THICKNESS_MM, help="mm (default 0.25)")
+    model.add_argument("--ior", type=float, default=SKIN_IOR, help="refractive index of skin (default 1.4)")
+
+
+def _params(args) -> SkinParams:
+    values = {}
+    if args.preset:
+        base = preset(args.preset)
+        values = {"melanin": float(base.melanin), "melanin_blend": float(base.melanin_blend), "haemoglobin": float(base.haemoglobin)}
+    for name in ("melanin", "melanin_blend", "haemoglobin"):
+        if getattr(args, name) is not None:
+            values[name] = getattr(args, name)
+    missing = [n.replace("_", "-") for n in ("melanin", "melanin_blend", "haemoglobin") if n not in values]
+    if missing:
+        raise SkinfitInputError(f"give --preset or all of --melanin, --melanin-blend, --haemoglobin (missing: --{', --'.join(missing)})")
+    return SkinParams(**values)
+
+
+def _model_options(args) -> dict:
+    return {
+        "adding": args.adding,
+        "blood_oxygenation": args.blood_oxygenation,
+        "epidermis_thickness_mm": args.epidermis_thickness_mm,
+        "ior": args.ior,
+    }
+
+
+def _cmd_spectrum(args) -> int:
+    from .reflectance import diffuse_reflectance
+
+    wavelengths = parse_wavelengths(args.wavelengths)
+    reflectance = np.asarray(diffuse_reflectance(_params(args), wavelengths, **_model_options(args)))
+    lines = ["wavelength_nm,reflectance"] + [f"{w:g},{r:.8f}" for w, r in zip(wavelengths, reflectance)]
+    print("\n".join(lines))
+    return 0
+
+
+def _cmd_profiles(args) -> int:
+    from .tables import profile_table, write_table
+
+    table = profile_table(
+        _params(args),
+        parse_wavelengths(args.wavelengths),
+        parse_radii(args.radii),
+        illuminant=args.illuminant,
+        label=args.preset or "",
+        **_model_options(args),
+    )
+    path = write_table(table, args.out)
+    print(f"wrote {path}: {table.spectral.shape[0]} wavelengths x {table.spectral.shape[1]} radii (mm^-2) + linear sRGB profiles")
+    return 0
+
+
+def _cmd_demo(args) -> int:
+    from .colorimetry import spectrum_to_srgb
+    from .plots import plot_profiles, plot_spectra
+    from .reflectance import diffuse_reflectance
+    from .tables import profile_table, write_table
+
+    out = Path(args.out)
+    out.mkdir(parents=True, exist_ok=True)
+    wavelengths = np.arange(400.0, 701.0, 5.0)
+    radii = parse_radii(DEFAULT_RADII)
+    start = time.perf_counter()
+    spectra, srgb, rgb_profiles = {}, {}, {}
+    for name in PRESET_NAMES:
+        params = preset(name)
+        spectra[name] = np.asarray(diffuse_reflectance(params, wavelengths))
+        srgb[name] = np.asarray(spectrum_to_srgb(spectra[name], wavelengths))
+        table = profile_table(params, wavelengths, radii, label=name)
+        write_table(table, out / f"profiles_{name}.csv")
+        rgb_profiles[name] = table.rgb
+    elapsed = time.perf_counter() - start
+    rows = ["wavelength_nm," + ",".join(PRESET_NAMES)]
+    rows += [f"{w:g}," + ",".join(f"{spectra[n][i]:.6f}" for n in PRESET_NAMES) for i, w in enumerate(wavelengths)]
+    (out / "reflectance.csv").write_text("\n".join(rows) + "\n", encoding="utf-8")
+    plot_spectra(wavelengths, spectra, srgb, out / "presets.png")
+    plot_profiles(radii, rgb_profiles, out / "profiles.png")
+
+    print("skinfit demo: DJ2006 skin presets (diffuse reflectance, normal incidence, specular excluded)")
+    print(f"{'preset':<8} {'C_m':>6} {'beta_m':>6} {'C_h':>6}   R(450)   R(550)   R(650)   sRGB (D65)")
+    for name in PRESET_NAMES:
+        p = preset(name)
+        r = {w: spectra[name][np.argmin(np.abs(wavelengths - w))] for w in (450, 550, 650)}
+        hex_ = "#" + "".join(f"{int(round(255 * c)):02x}" for c in srgb[name])
+        print(f"{name:<8} {float(p.melanin):6.3f} {float(p.melanin_blend):6.2f} {float(p.haemoglobin):6.3f}"
+              f"   {r[450]:.4f}   {r[550]:.4f}   {r[650]:.4f}   {hex_}")
+    print(f"computed {len(PRESET_NAMES)} presets x {wavelengths.size} wavelengths x {radii.size} radii in {elapsed:.2f} s (incl. compilation)")
+    print(f"wrote {out}/: reflectance.csv, profiles_<preset>.csv, presets.png, profiles.png")
+    return 0
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = _Parser(prog="skinfit", description="Spectral two-layer skin model (Donner & Jensen 2006) in JAX.")
+    sub = parser.add_subparsers(dest="command", required=True, parser_class=_Parser)
+
+    spectrum = sub.add_parser("spectrum", help="print a diffuse reflectance spectrum as CSV")
+    _add_model_arguments(spectrum)
+    spectrum.set_defaults(run=_cmd_spectrum)
+
+    profiles = sub.add_parser("profiles", help="write a spectral + RGB radial profile table")
+    _add_model_arguments(profiles, wavelengths="400:700:5")
+    profiles.add_argument("--radii", default=DEFAULT_RADII, help=f"mm, START:STOP:N, log-spaced if START > 0 (default {DEFAULT_RADII})")
+    profiles.add_argument("--illuminant", default="D65", help="illuminant of the RGB profiles (default D65)")
+    profiles.add_argument("--out", required=True, help="output file: .csv, .npz or .exr")
+    profiles.set_defaults(run=_cmd_profiles)
+
+    demo = sub.add_parser("demo", help="the main job on bundled defaults: reflectance and profiles of the presets")
+    demo.add_argument("--out", default="skinfit-demo", help="output folder (default ./skinfit-demo)")
+    demo.set_defaults(run=_cmd_demo)
+    return parser
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    try:
+        return args.run(args)
+    except SkinfitInputError as err:
+        print(f"skinfit {args.command}: error: {err}", file=sys.stderr)
+        return 2
+    except OSError as err:
+        print(f"skinfit {args.command}: error: {err}", file=sys.stderr)
+        return 1
+
+
+if __name__ == "__main__":
+    sys.exit(main())

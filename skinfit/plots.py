@@ -1,0 +1,56 @@
+"""Figures for people: reflectance spectra with sRGB swatches, and radial profiles on log axes."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+
+
+def _pyplot():
+    import matplotlib
+
+    matplotlib.use("Agg", force=False)
+    import matplotlib.pyplot as plt
+
+    return plt
+
+
+def plot_spectra(wavelengths_nm, spectra: dict[str, np.ndarray], srgb: dict[str, np.ndarray], path: str | Path):
+    """Reflectance spectra (one line each) beside sRGB swatches of the same colours."""
+    plt = _pyplot()
+    fig, (ax, sw) = plt.subplots(1, 2, figsize=(9, 3.6), gridspec_kw={"width_ratios": [3, 1]})
+    for name, values in spectra.items():
+        ax.plot(wavelengths_nm, values, color=np.clip(srgb[name], 0, 1), lw=2.5, label=name)
+        ax.plot(wavelengths_nm, values, color="k", lw=0.5)
+    ax.set_xlabel("wavelength (nm)")
+    ax.set_ylabel("diffuse reflectance")
+    ax.set_ylim(0, None)
+    ax.legend(frameon=False)
+    ax.set_title("DJ2006 skin, normal incidence, specular excluded")
+    for i, (name, colour) in enumerate(srgb.items()):
+        sw.add_patch(plt.Rectangle((0, -i), 1, 0.9, color=np.clip(colour, 0, 1)))
+        sw.text(1.1, -i + 0.45, f"{name}\n#{''.join(f'{int(round(255 * c)):02x}' for c in np.clip(colour, 0, 1))}", va="center")
+    sw.set_xlim(0, 2.2)
+    sw.set_ylim(-len(srgb) + 0.9, 1)
+    sw.axis("off")
+    sw.set_title("sRGB, D65")
+    fig.tight_layout()
+    fig.savefig(path, dpi=120)
+    plt.close(fig)
+
+
+def plot_profiles(radii_mm, rgb_profiles: dict[str, np.ndarray], path: str | Path):
+    """r * R(r) (energy per log radius) of the linear-sRGB profiles, one panel per parameter set."""
+    plt = _pyplot()
+    fig, axes = plt.subplots(1, len(rgb_profiles), figsize=(4 * len(rgb_profiles), 3.4), squeeze=False)
+    for ax, (name, rgb) in zip(axes[0], rgb_profiles.items()):
+        for channel, colour in zip(rgb, ("tab:red", "tab:green", "tab:blue")):
+            ax.loglog(radii_mm, np.maximum(2 * np.pi * radii_mm**2 * channel, 1e-12), color=colour)
+        ax.set_ylim(1e-6, None)
+        ax.set_xlabel("radius r (mm)")
+        ax.set_title(name)
+    axes[0][0].set_ylabel(r"$2\pi r^2 R(r)$ (energy per ln r)")
+    fig.tight_layout()
+    fig.savefig(path, dpi=120)
+    plt.close(fig)

@@ -1,0 +1,117 @@
+"""Radial diffusion profiles R(r, lambda) in mm^-2: inverse Hankel transforms of R12(q).
+
+R(r) = R_dipole(r) + (1/2pi) int [R12(q) - R_dipole(q)] J0(q r) q dq, where R_dipole is the top
+layer's own dipole (closed form in both domains). The subtraction carries the sharp peak at small
+r; what remains is smooth and decays fast in q, so a modest Gauss-Legendre quadrature reaches
+~1e-15 of the peak (tests compare against real-space image sums and a 2-D FFT).
+
+The integral of 2 pi r R(r) dr over the plane equals R12(0), the diffuse reflectance before the
+entry Fresnel factor; ``entry_fresnel=True`` includes that factor so the profile integrates to
+``diffuse_reflectance``.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+from jaxtyping import Array, ArrayLike, Float
+
+from .adding import Adding
+from .hankel import HankelQuadrature, check_radii, inverse_kernel
+from .layers import BLOOD_OXYGENATION, EPIDERMIS_THICKNESS_MM, SKIN_IOR, Layer, skin_layers
+from .multipole import dipole_profile, dipole_transfer
+from .params import SkinParams
+from .reflectance import (
+    _check_options,
+    _skin_options,
+    _check_stack,
+    _checked_wavelengths,
+    normal_fresnel_reflectance,
+    stack_transfer,
+)
+
+
+def layered_profile(
+    layers: Sequence[Layer],
+    radii_mm: ArrayLike,
+    *,
+    adding: Adding = "directional",
+    ior_above: ArrayLike = 1.0,
+    ior_below: ArrayLike = 1.0,
+    entry_fresnel: bool = False,
+    quadrature: HankelQuadrature = HankelQuadrature(),
+) -> Float[Array, "... n_radii"]:
+    """Radial profile R(r) in mm^-2 of a user-defined stack (top first) at radii ``radii_mm``.
+
+    Layer fields of shape (...) give a result of shape (..., n_radii).
+    """
+    layers = _check_stack(layers)
+    _check_options(adding)
+    radii = check_radii(radii_mm)
+    q, kernel = inverse_kernel(radii, quadrature)
+    return _profile(layers, radii, q, kernel, adding, jnp.asarray(ior_above), jnp.asarray(ior_below), bool(entry_fresnel))
+
+
+def profile(
+    params: SkinParams,
+    wavelengths_nm: ArrayLike,
+    radii_mm: ArrayLike,
+    *,
+    adding: Adding = "directional",
+    blood_oxygenation: ArrayLike = BLOOD_OXYGENATION,
+    epidermis_thickness_mm: ArrayLike = EPIDERMIS_THICKNESS_MM,
+    ior: ArrayLike = SKIN_IOR,
+    entry_fresnel: bool = False,
+    quadrature: HankelQuadrature = HankelQuadrature(),
+) -> Float[Array, "*batch n_wavelengths n_radii"]:
+    """Radial diffusion profile of skin, R(r, lambda) in mm^-2.
+
+    Args:
+        params: ``SkinParams`` of batch shape (...).
+        wavelengths_nm: 1-D wavelengths in nm.
+        radii_mm: 1-D radii in mm (concrete values, >= 0).
+        entry_fresnel: multiply by (1 - F0) so the profile integrates to ``diffuse_reflectance``
+            instead of R12(0).
+        quadrature: ``HankelQuadrature`` settings (accuracy against cost).
+        Other options as in ``diffuse_reflectance``.
+
+    Returns:
+        Array of shape (..., n_wavelengths, n_radii).
+    """
+    lam = _checked_wavelengths(wavelengths_nm)
+    options = _skin_options(adding, blood_oxygenation, epidermis_thickness_mm, ior, like=(lam, params))
+    radii = check_radii(radii_mm)
+    q, kernel = inverse_kernel(radii, quadrature)
+    return _skin_profile(params, lam, radii, q, kernel, adding, *options, bool(entry_fresnel))
+
+
+@eqx.filter_jit
+def _skin_profile(params, lam, radii, q, kernel, adding, blood_oxygenation, epidermis_thickness_mm, ior, entry_fresnel):
+    layers = skin_layers(
+        params, lam, blood_oxygenation=blood_oxygenation, epidermis_thickness_mm=epidermis_thickness_mm, ior=ior
+    )
+    one = jnp.ones((), lam.dtype)
+    return _profile(layers, radii, q, kernel, adding, one, one, entry_fresnel)
+
+
+@eqx.filter_jit
+def _profile(layers, radii, q, kernel, adding, ior_above, ior_below, entry_fresnel):
+    top = layers[0]
+    dtype = jnp.result_type(top.absorption, top.reduced_scattering)
+    q, kernel, radii = (jnp.asarray(a, dtype) for a in (q, kernel, radii))
+    eta_top = top.ior / jnp.asarray(ior_above)
+    # Fields gain a trailing axis over q (or r); everything else broadcasts as before.
+    expanded = [jax.tree_util.tree_map(lambda a: jnp.asarray(a)[..., None], layer) for layer in layers]
+    r12 = stack_transfer(expanded, q, adding=adding, ior_above=ior_above, ior_below=ior_below)
+    smooth = r12 - dipole_transfer(
+        expanded[0].absorption, expanded[0].reduced_scattering, eta_top[..., None], q, expanded[0].thickness
+    )
+    result = smooth @ kernel + dipole_profile(
+        expanded[0].absorption, expanded[0].reduced_scattering, eta_top[..., None], radii, expanded[0].thickness
+    ).astype(smooth.dtype)
+    if entry_fresnel:
+        result = result * (1.0 - normal_fresnel_reflectance(top.ior, ior_above))[..., None]
+    return result
