@@ -29,9 +29,10 @@ WAVELENGTH_RANGE_NM = (250.0, 1000.0)
 BLOOD_HAEMOGLOBIN_G_PER_L = 150.0
 HAEMOGLOBIN_MOLAR_MASS_G_PER_MOL = 64_500.0
 
-# mm^-1 per (cm^-1 / M): ln(10) * 150 g/L / 64,500 g/mol / (10 mm per cm) = 5.3558e-4.
+# mm^-1 per (cm^-1 / M): 2.303 * 150 g/L / 64,500 g/mol / (10 mm per cm) = 5.3558e-4. Prahl writes ln(10)
+# as 2.303, and so do the DJ2006 tables (damlaren: 280.795 mm^-1 for HbO2 at 414 nm); we keep it.
 _EXTINCTION_TO_MM = (
-    np.log(10.0) * BLOOD_HAEMOGLOBIN_G_PER_L / HAEMOGLOBIN_MOLAR_MASS_G_PER_MOL / 10.0
+    2.303 * BLOOD_HAEMOGLOBIN_G_PER_L / HAEMOGLOBIN_MOLAR_MASS_G_PER_MOL / 10.0
 )
 
 

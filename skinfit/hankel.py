@@ -30,20 +30,27 @@ class HankelQuadrature:
             of its peak by q = 100 for the DJ2006 model; 200 leaves margin for thinner epidermis.
         nodes_per_panel: Gauss-Legendre order of each panel.
         phase_per_panel: largest phase span r_max * width (radians) of J0 across one panel.
-        max_panel_width: panel width cap, so that the response's own structure (scale sigma_tr,
-            about 0.3-3 mm^-1) is resolved even for small radii.
+        max_panel_width: panel width cap, so that the response's own structure is resolved even
+            for small radii.
+        smallest_panel: width of the first panel at q = 0. Panels double from there up to the
+            regular width: R(q) has branch points at q = +-i sigma_tr, close to the real axis for
+            weakly absorbing layers (sigma_tr down to ~0.05 mm^-1 in red dermis), and the graded
+            panels resolve them.
     """
 
     q_max: float = 200.0
     nodes_per_panel: int = 16
     phase_per_panel: float = 20.0
     max_panel_width: float = 2.5
+    smallest_panel: float = 1e-3
 
     def nodes(self, max_radius_mm: float) -> tuple[np.ndarray, np.ndarray]:
         """Quadrature nodes q_j (mm^-1) and weights for integrals over [0, q_max]."""
         width = min(self.max_panel_width, self.phase_per_panel / max(max_radius_mm, 1e-12))
-        n_panels = int(np.ceil(self.q_max / width))
-        edges = np.linspace(0.0, self.q_max, n_panels + 1)
+        graded = self.smallest_panel * 2.0 ** np.arange(int(np.ceil(np.log2(max(width / self.smallest_panel, 1.0)))))
+        start = graded[-1] if graded.size else 0.0
+        n_panels = max(int(np.ceil((self.q_max - start) / width)), 1)
+        edges = np.concatenate([[0.0], graded[:-1], np.linspace(start, self.q_max, n_panels + 1)])
         x, w = np.polynomial.legendre.leggauss(self.nodes_per_panel)
         half = 0.5 * np.diff(edges)[:, None]
         mid = 0.5 * (edges[1:] + edges[:-1])[:, None]

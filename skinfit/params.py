@@ -47,10 +47,13 @@ class SkinParams(eqx.Module):
             check_range(name, array, *PARAMETER_RANGES[name])
             setattr(self, name, array)
         try:
-            np.broadcast_shapes(*(jnp.shape(v) for v in self._values()))
+            shape = np.broadcast_shapes(*(jnp.shape(v) for v in self._values()))
         except ValueError:
             shapes = ", ".join(f"{n}{jnp.shape(v)}" for n, v in zip(PARAMETER_RANGES, self._values()))
             raise SkinfitInputError(f"SkinParams fields do not broadcast: {shapes}") from None
+        # Every field gets the full batch shape, so vmap can map any batch axis of the bundle.
+        for name in PARAMETER_RANGES:
+            setattr(self, name, jnp.broadcast_to(getattr(self, name), shape))
 
     def _values(self):
         return (self.melanin, self.melanin_blend, self.haemoglobin, self.oil)

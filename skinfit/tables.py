@@ -145,9 +145,9 @@ def _write_exr(table: ProfileTable, path: Path) -> None:
     if out is None or not out.open(str(path), [spectral_spec, rgb_spec]):
         raise OSError(f"cannot write {path}: {oiio.geterror() if out is None else out.geterror()}")
     try:
-        ok = out.write_image(table.spectral.astype(np.float32)[:, :, None])
+        ok = out.write_image(np.ascontiguousarray(table.spectral[:, :, None], dtype=np.float32))
         ok = ok and out.open(str(path), rgb_spec, "AppendSubimage")
-        ok = ok and out.write_image(table.rgb.T.astype(np.float32)[None, :, :])
+        ok = ok and out.write_image(np.ascontiguousarray(table.rgb.T[None, :, :], dtype=np.float32))
         if not ok:
             raise OSError(f"cannot write {path}: {out.geterror()}")
     finally:

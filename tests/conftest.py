@@ -1,0 +1,26 @@
+import numpy as np
+import pytest
+
+import skinfit  # noqa: F401 - enables float64 before any test builds arrays
+
+#: Light-skin fixture of MODEL.md 5.4 (C_m 0.005, beta_m 0.7, C_h 0.005) at 450, 550, 650 nm.
+LIGHT_FIXTURE = {
+    "wavelengths_nm": np.array([450.0, 550.0, 650.0]),
+    "R1_top": np.array([0.3029, 0.2521, 0.2090]),
+    "R1_bottom": np.array([0.4696, 0.4912, 0.5016]),
+    "T1_top": np.array([0.3811, 0.5923, 0.7041]),
+    "T1_bottom": np.array([0.2283, 0.3436, 0.3990]),
+    "R2": np.array([0.4690, 0.5066, 0.7131]),
+    "R12_directional": np.array([0.3553, 0.3893, 0.5209]),
+    "R12_symmetric": np.array([0.3823, 0.4558, 0.6244]),
+}
+
+
+@pytest.fixture
+def light_fixture():
+    return LIGHT_FIXTURE
+
+
+@pytest.fixture
+def light():
+    return skinfit.preset("light")

@@ -1,0 +1,69 @@
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+
+from skinfit.cli import main
+
+from .conftest import LIGHT_FIXTURE
+
+F0 = ((1.4 - 1) / (1.4 + 1)) ** 2
+
+
+def run_cli(*args):
+    return subprocess.run([sys.executable, "-m", "skinfit", *args], capture_output=True, text=True, timeout=300)
+
+
+def test_spectrum_prints_the_light_fixture(capsys):
+    assert main(["spectrum", "--preset", "light", "--wavelengths", "450:650:100"]) == 0
+    lines = capsys.readouterr().out.strip().splitlines()
+    assert lines[0] == "wavelength_nm,reflectance"
+    data = np.loadtxt(lines[1:], delimiter=",")
+    np.testing.assert_array_equal(data[:, 0], [450, 550, 650])
+    np.testing.assert_allclose(data[:, 1], (1 - F0) * LIGHT_FIXTURE["R12_directional"], atol=6e-5)
+
+
+def test_spectrum_explicit_parameters_and_symmetric_adding(capsys):
+    assert main(["spectrum", "--melanin", "0.005", "--melanin-blend", "0.7", "--haemoglobin", "0.005", "--wavelengths", "550", "--adding", "symmetric"]) == 0
+    value = float(capsys.readouterr().out.strip().splitlines()[1].split(",")[1])
+    assert value == pytest.approx((1 - F0) * 0.4558, abs=6e-5)
+
+
+@pytest.mark.parametrize(
+    "args, word",
+    [
+        (["spectrum", "--melanin", "0.1"], "missing"),
+        (["spectrum", "--preset", "light", "--wavelengths", "100:700:10"], "wavelengths_nm"),
+        (["spectrum", "--preset", "light", "--wavelengths", "abc"], "--wavelengths"),
+        (["spectrum", "--preset", "pale"], "invalid choice"),
+        (["profiles", "--preset", "light", "--radii", "1:0:5", "--out", "x.csv"], "--radii"),
+        (["spectrum", "--melanin", "7", "--melanin-blend", "0.5", "--haemoglobin", "0.01"], "melanin"),
+    ],
+)
+def test_usage_errors_are_one_line_with_exit_code_2(args, word):
+    result = run_cli(*args)
+    assert result.returncode == 2
+    assert len(result.stderr.strip().splitlines()) == 1, result.stderr
+    assert word in result.stderr and "Traceback" not in result.stderr
+
+
+def test_profiles_command_writes_each_format(tmp_path):
+    for suffix in (".csv", ".npz", ".exr"):
+        out = tmp_path / f"t{suffix}"
+        assert main(["profiles", "--preset", "dark", "--wavelengths", "450:650:100", "--radii", "0.01:5:16", "--out", str(out)]) == 0
+        assert out.stat().st_size > 0
+
+
+def test_every_command_has_help():
+    for command in ("spectrum", "profiles", "demo"):
+        result = run_cli(command, "--help")
+        assert result.returncode == 0 and "usage" in result.stdout
+
+
+def test_demo_writes_tables_and_plots(tmp_path, capsys):
+    assert main(["demo", "--out", str(tmp_path / "demo")]) == 0
+    out = capsys.readouterr().out
+    assert "light" in out and "dark" in out
+    for name in ("reflectance.csv", "profiles_light.csv", "presets.png", "profiles.png"):
+        assert (tmp_path / "demo" / name).stat().st_size > 0
