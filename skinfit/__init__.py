@@ -11,27 +11,58 @@ import jax as _jax
 
 _jax.config.update("jax_enable_x64", True)
 
-from ._validate import SkinfitInputError  # noqa: E402
-from .adding import stack_reflectance  # noqa: E402
-from .layers import Layer, skin_layers  # noqa: E402
-from .multipole import SlabResponse, slab_response  # noqa: E402
-from .params import PRESET_NAMES, SkinParams, preset, preset_source  # noqa: E402
-from .reflectance import diffuse_reflectance, layered_reflectance, stack_transfer  # noqa: E402
-
 __version__ = "0.1.0"
 
+from ._validate import SkinfitInputError  # noqa: E402
+from .adding import stack_reflectance  # noqa: E402
+from .colorimetry import (  # noqa: E402
+    linear_srgb_weights,
+    spectrum_to_linear_srgb,
+    spectrum_to_srgb,
+    spectrum_to_xyz,
+    srgb_decode,
+    srgb_encode,
+    xyz_to_linear_srgb,
+    xyz_weights,
+)
+from .hankel import HankelQuadrature  # noqa: E402
+from .layers import Layer, skin_layers  # noqa: E402
+from .measurements import NistSpectra, read_nist  # noqa: E402
+from .multipole import SlabResponse, slab_response  # noqa: E402
+from .params import PRESET_NAMES, SkinParams, preset, preset_source  # noqa: E402
+from .profiles import layered_profile, profile  # noqa: E402
+from .reflectance import diffuse_reflectance, layered_reflectance, stack_transfer  # noqa: E402
+from .tables import ProfileTable, profile_table, read_exr_table, write_table  # noqa: E402
+
 __all__ = [
+    "HankelQuadrature",
     "Layer",
+    "NistSpectra",
     "PRESET_NAMES",
+    "ProfileTable",
     "SkinParams",
     "SkinfitInputError",
     "SlabResponse",
     "diffuse_reflectance",
+    "layered_profile",
     "layered_reflectance",
+    "linear_srgb_weights",
     "preset",
     "preset_source",
+    "profile",
+    "profile_table",
+    "read_exr_table",
+    "read_nist",
     "skin_layers",
     "slab_response",
+    "spectrum_to_linear_srgb",
+    "spectrum_to_srgb",
+    "spectrum_to_xyz",
+    "srgb_decode",
+    "srgb_encode",
     "stack_reflectance",
     "stack_transfer",
+    "write_table",
+    "xyz_to_linear_srgb",
+    "xyz_weights",
 ]

@@ -125,20 +125,20 @@ def _cmd_demo(args) -> int:
     wavelengths = np.arange(400.0, 701.0, 5.0)
     radii = parse_radii(DEFAULT_RADII)
     start = time.perf_counter()
-    spectra, srgb, rgb_profiles = {}, {}, {}
+    spectra, srgb, spectral_profiles = {}, {}, {}
     for name in PRESET_NAMES:
         params = preset(name)
         spectra[name] = np.asarray(diffuse_reflectance(params, wavelengths))
         srgb[name] = np.asarray(spectrum_to_srgb(spectra[name], wavelengths))
         table = profile_table(params, wavelengths, radii, label=name)
         write_table(table, out / f"profiles_{name}.csv")
-        rgb_profiles[name] = table.rgb
+        spectral_profiles[name] = table.spectral
     elapsed = time.perf_counter() - start
     rows = ["wavelength_nm," + ",".join(PRESET_NAMES)]
     rows += [f"{w:g}," + ",".join(f"{spectra[n][i]:.6f}" for n in PRESET_NAMES) for i, w in enumerate(wavelengths)]
     (out / "reflectance.csv").write_text("\n".join(rows) + "\n", encoding="utf-8")
     plot_spectra(wavelengths, spectra, srgb, out / "presets.png")
-    plot_profiles(radii, rgb_profiles, out / "profiles.png")
+    plot_profiles(radii, wavelengths, spectral_profiles, out / "profiles.png")
 
     print("skinfit demo: DJ2006 skin presets (diffuse reflectance, normal incidence, specular excluded)")
     print(f"{'preset':<8} {'C_m':>6} {'beta_m':>6} {'C_h':>6}   R(450)   R(550)   R(650)   sRGB (D65)")

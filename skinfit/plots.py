@@ -40,17 +40,20 @@ def plot_spectra(wavelengths_nm, spectra: dict[str, np.ndarray], srgb: dict[str,
     plt.close(fig)
 
 
-def plot_profiles(radii_mm, rgb_profiles: dict[str, np.ndarray], path: str | Path):
-    """r * R(r) (energy per log radius) of the linear-sRGB profiles, one panel per parameter set."""
+def plot_profiles(radii_mm, wavelengths_nm, profiles: dict[str, np.ndarray], path: str | Path, show_nm=(450.0, 550.0, 650.0)):
+    """2 pi r^2 R(r) (energy per ln r) at a few wavelengths, one panel per parameter set."""
     plt = _pyplot()
-    fig, axes = plt.subplots(1, len(rgb_profiles), figsize=(4 * len(rgb_profiles), 3.4), squeeze=False)
-    for ax, (name, rgb) in zip(axes[0], rgb_profiles.items()):
-        for channel, colour in zip(rgb, ("tab:red", "tab:green", "tab:blue")):
-            ax.loglog(radii_mm, np.maximum(2 * np.pi * radii_mm**2 * channel, 1e-12), color=colour)
-        ax.set_ylim(1e-6, None)
+    fig, axes = plt.subplots(1, len(profiles), figsize=(4 * len(profiles), 3.4), squeeze=False, sharey=True)
+    colours = ("tab:blue", "tab:green", "tab:red", "tab:purple", "tab:orange")
+    for ax, (name, values) in zip(axes[0], profiles.items()):
+        for lam, colour in zip(show_nm, colours):
+            row = values[int(np.argmin(np.abs(np.asarray(wavelengths_nm) - lam)))]
+            ax.loglog(radii_mm, np.maximum(2 * np.pi * radii_mm**2 * row, 1e-12), color=colour, label=f"{lam:g} nm")
+        ax.set_ylim(1e-6, 1)
         ax.set_xlabel("radius r (mm)")
         ax.set_title(name)
     axes[0][0].set_ylabel(r"$2\pi r^2 R(r)$ (energy per ln r)")
+    axes[0][0].legend(frameon=False)
     fig.tight_layout()
     fig.savefig(path, dpi=120)
     plt.close(fig)

@@ -31,11 +31,10 @@ def test_directional_and_symmetric_adding_match_fixture(light, light_fixture):
 
 def test_adding_sums_the_geometric_series_of_interreflections(light):
     top, bottom = _skin_responses(light, np.array([500.0]))
-    r2 = bottom.reflect_top
-    series = top.reflect_top + sum(
-        top.transmit_top * r2 * (top.reflect_bottom * r2) ** n * top.transmit_bottom for n in range(200)
-    )
-    np.testing.assert_allclose(add_below(top, r2), series, rtol=1e-13)
+    r1p, t1p, r1m, t1m = (np.asarray(v) for v in top)
+    r2 = np.asarray(bottom.reflect_top)
+    series = r1p + sum(t1p * r2 * (r1m * r2) ** n * t1m for n in range(200))
+    np.testing.assert_allclose(add_below(top, bottom.reflect_top), series, rtol=1e-13)
 
 
 def test_three_layer_stack_folds_from_the_bottom():

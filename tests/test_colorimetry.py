@@ -16,6 +16,7 @@ def test_perfect_white_is_y_one_and_rgb_one(illuminant):
     np.testing.assert_allclose(col.spectrum_to_linear_srgb(white, wl, illuminant=illuminant), 1.0, atol=1e-12)
 
 
+@pytest.mark.filterwarnings("ignore:.*shape could not be honoured")  # colour-science's own resampling note
 @pytest.mark.parametrize("step", [1.0, 5.0, 10.0])
 def test_xyz_agrees_with_colour_science(light, step):
     wl = np.arange(380.0, 781.0, step)

@@ -1,0 +1,21 @@
+"""The README's two newcomer commands stay true: CI runs the test one verbatim."""
+
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parent.parent
+
+
+def _command_lines(text):
+    return [line.strip() for line in text.splitlines() if line.strip().startswith("python3 -m venv")]
+
+
+def test_ci_runs_the_readme_test_command_verbatim():
+    readme = _command_lines((ROOT / "README.md").read_text())
+    ci = _command_lines((ROOT / ".ci" / "run").read_text())
+    assert len(readme) == 2, "the README gives a newcomer exactly two commands"
+    assert ci == [readme[1]]
+    assert readme[1].endswith("pytest") and "[test]" in readme[1]
+
+
+def test_readme_main_command_runs_the_demo():
+    assert _command_lines((ROOT / "README.md").read_text())[0].endswith("skinfit demo")
