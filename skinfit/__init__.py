@@ -25,16 +25,22 @@ from .colorimetry import (  # noqa: E402
     xyz_to_linear_srgb,
     xyz_weights,
 )
+from .spectral_fit import FitStatus, SolverSettings, SpectralFit, fit_spectra  # noqa: E402
 from .hankel import HankelQuadrature  # noqa: E402
 from .layers import Layer, skin_layers  # noqa: E402
 from .measurements import NistSpectra, read_nist  # noqa: E402
 from .multipole import SlabResponse, slab_response  # noqa: E402
 from .params import PRESET_NAMES, SkinParams, preset, preset_source  # noqa: E402
-from .profiles import layered_profile, profile  # noqa: E402
+from .profiles import captured_reflectance, layered_profile, profile  # noqa: E402
 from .reflectance import diffuse_reflectance, layered_reflectance, stack_transfer  # noqa: E402
 from .tables import ProfileTable, profile_table, read_exr_table, write_table  # noqa: E402
 
 __all__ = [
+    "FitStatus",
+    "SolverSettings",
+    "SpectralFit",
+    "captured_reflectance",
+    "fit_spectra",
     "HankelQuadrature",
     "Layer",
     "NistSpectra",

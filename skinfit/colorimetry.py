@@ -94,10 +94,7 @@ def spectrum_to_xyz(
     observer: str = DEFAULT_OBSERVER,
 ) -> Float[Array, "... 3"]:
     """CIE XYZ (white Y = 1) of reflectance spectra of shape (..., n_wavelengths)."""
-    weights = xyz_weights(wavelengths_nm, illuminant, observer)
-    reflectance = jnp.asarray(reflectance)
-    _check_spectrum_axis(reflectance, weights)
-    return reflectance @ jnp.asarray(weights.T, reflectance.dtype)
+    return _weigh(reflectance, xyz_weights(wavelengths_nm, illuminant, observer))
 
 
 def xyz_to_linear_srgb(
@@ -124,10 +121,7 @@ def spectrum_to_linear_srgb(
     observer: str = DEFAULT_OBSERVER,
 ) -> Float[Array, "... 3"]:
     """Linear sRGB of reflectance spectra of shape (..., n_wavelengths)."""
-    weights = linear_srgb_weights(wavelengths_nm, illuminant, observer)
-    reflectance = jnp.asarray(reflectance)
-    _check_spectrum_axis(reflectance, weights)
-    return reflectance @ jnp.asarray(weights.T, reflectance.dtype)
+    return _weigh(reflectance, linear_srgb_weights(wavelengths_nm, illuminant, observer))
 
 
 def spectrum_to_srgb(
@@ -161,8 +155,11 @@ def srgb_decode(encoded: ArrayLike) -> Float[Array, "..."]:
     return jnp.where(encoded <= knee, encoded / 12.92, power)
 
 
-def _check_spectrum_axis(reflectance, weights):
+def _weigh(reflectance, weights: np.ndarray):
+    """Apply (3, n_wavelengths) colour weights along the last axis of ``reflectance``."""
+    reflectance = jnp.asarray(reflectance)
     if reflectance.ndim == 0 or reflectance.shape[-1] != weights.shape[1]:
         raise SkinfitInputError(
             f"reflectance must have its last axis over the {weights.shape[1]} wavelengths, got shape {reflectance.shape}"
         )
+    return reflectance @ jnp.asarray(weights.T, reflectance.dtype)

@@ -85,3 +85,19 @@ def _inverse_kernel(radii_bytes: bytes, quadrature: HankelQuadrature):
     kernel = (w * q / (2.0 * np.pi))[:, None] * scipy.special.j0(q[:, None] * radii[None, :])
     kernel.setflags(write=False)
     return q, kernel
+
+
+def energy_kernel(radius_mm: float, quadrature: HankelQuadrature) -> tuple[np.ndarray, np.ndarray]:
+    """Nodes q and weights w with int_0^a 2 pi r R(r) dr = sum_j R(q_j) w_j, a = ``radius_mm``.
+
+    From int_0^a 2 pi r R(r) dr = a int_0^inf R(q) J1(q a) dq.
+    """
+    return _energy_kernel(float(radius_mm), quadrature)
+
+
+@functools.lru_cache(maxsize=32)
+def _energy_kernel(radius: float, quadrature: HankelQuadrature):
+    q, w = quadrature.nodes(radius)
+    weights = w * radius * scipy.special.j1(q * radius)
+    weights.setflags(write=False)
+    return q, weights

@@ -64,6 +64,7 @@ def skin_layers(
     blood_oxygenation: ArrayLike = BLOOD_OXYGENATION,
     epidermis_thickness_mm: ArrayLike = EPIDERMIS_THICKNESS_MM,
     ior: ArrayLike = SKIN_IOR,
+    scattering_scale: ArrayLike = 1.0,
 ) -> tuple[Layer, Layer]:
     """Epidermis over semi-infinite dermis for each wavelength (MODEL.md 2.3, 3, 4).
 
@@ -71,12 +72,14 @@ def skin_layers(
     sigma_a,derm = C_h [gamma sigma_oxy + (1 - gamma) sigma_deoxy] + (1 - C_h) sigma_base
 
     Parameter arrays of batch shape (...) give layer fields of shape (..., n_wavelengths);
-    ``blood_oxygenation`` (gamma), ``epidermis_thickness_mm`` and ``ior`` broadcast with them.
+    ``blood_oxygenation`` (gamma), ``epidermis_thickness_mm``, ``ior`` and ``scattering_scale`` (a
+    factor on the reduced scattering of both layers, 1 in DJ2006) broadcast with them.
     """
     lam = jnp.asarray(wavelengths_nm)
     expand = lambda x: jnp.asarray(x)[..., None]  # noqa: E731 - batch axes, then wavelength
     c_m, beta_m, c_h = expand(params.melanin), expand(params.melanin_blend), expand(params.haemoglobin)
     gamma = expand(blood_oxygenation)
+    scale = expand(scattering_scale)
 
     base = chrom.baseline_absorption(lam)
     melanin = beta_m * chrom.eumelanin_absorption(lam) + (1.0 - beta_m) * chrom.pheomelanin_absorption(lam)
@@ -84,14 +87,14 @@ def skin_layers(
 
     epidermis = Layer(
         absorption=c_m * melanin + (1.0 - c_m) * base,
-        reduced_scattering=chrom.epidermis_reduced_scattering(lam),
+        reduced_scattering=scale * chrom.epidermis_reduced_scattering(lam),
         thickness=expand(epidermis_thickness_mm),
         ior=expand(ior),
     )
     dermis = Layer(
         absorption=c_h * blood + (1.0 - c_h) * base,
-        reduced_scattering=chrom.dermis_reduced_scattering(lam),
-        thickness=float("inf"),
+        reduced_scattering=scale * chrom.dermis_reduced_scattering(lam),
+        thickness=jnp.full((), jnp.inf, lam.dtype),
         ior=expand(ior),
     )
     return epidermis, dermis

@@ -196,3 +196,26 @@ def dipole_profile(
         return z * (1.0 + sigma_tr * rho) * jnp.exp(-sigma_tr * rho) / rho**3
 
     return coeff.albedo / (4.0 * jnp.pi) * (pole(z_real) + pole(z_virtual))
+
+
+def dipole_energy(
+    absorption: ArrayLike,
+    reduced_scattering: ArrayLike,
+    eta_top: ArrayLike,
+    radius_mm: ArrayLike,
+    thickness: ArrayLike = float("inf"),
+) -> Float[Array, "..."]:
+    """Integral of 2 pi r R(r) dr over 0 <= r <= radius of ``dipole_profile`` (dimensionless).
+
+    Each pole integrates in closed form, since d/drho (e^{-s rho}/rho) = -(1 + s rho) e^{-s rho}/rho^2:
+    (alpha'/2) (e^{-s z} - z e^{-s rho_a} / rho_a), rho_a = sqrt(radius^2 + z^2).
+    """
+    coeff, z_real, z_virtual = _dipole_geometry(absorption, reduced_scattering, eta_top, thickness)
+    sigma_tr = _wavenumber(coeff.sigma_tr_squared, 0.0)
+    a2 = jnp.square(jnp.asarray(radius_mm))
+
+    def pole(z):
+        rho = jnp.sqrt(a2 + z**2)
+        return jnp.exp(-sigma_tr * z) - z * jnp.exp(-sigma_tr * rho) / rho
+
+    return 0.5 * coeff.albedo * (pole(z_real) + pole(z_virtual))

@@ -17,12 +17,14 @@ from collections.abc import Sequence
 import equinox as eqx
 import jax
 import jax.numpy as jnp
+import numpy as np
 from jaxtyping import Array, ArrayLike, Float
 
 from .adding import Adding
-from .hankel import HankelQuadrature, check_radii, inverse_kernel
+from .hankel import HankelQuadrature, check_radii, energy_kernel, inverse_kernel
 from .layers import BLOOD_OXYGENATION, EPIDERMIS_THICKNESS_MM, SKIN_IOR, Layer, skin_layers
-from .multipole import dipole_profile, dipole_transfer
+from .multipole import dipole_energy, dipole_profile, dipole_transfer
+from ._validate import SkinfitInputError
 from .params import SkinParams
 from .reflectance import (
     _check_options,
@@ -64,6 +66,7 @@ def profile(
     blood_oxygenation: ArrayLike = BLOOD_OXYGENATION,
     epidermis_thickness_mm: ArrayLike = EPIDERMIS_THICKNESS_MM,
     ior: ArrayLike = SKIN_IOR,
+    scattering_scale: ArrayLike = 1.0,
     entry_fresnel: bool = False,
     quadrature: HankelQuadrature = HankelQuadrature(),
 ) -> Float[Array, "*batch n_wavelengths n_radii"]:
@@ -82,16 +85,23 @@ def profile(
         Array of shape (..., n_wavelengths, n_radii).
     """
     lam = _checked_wavelengths(wavelengths_nm)
-    options = _skin_options(adding, blood_oxygenation, epidermis_thickness_mm, ior, like=(lam, params))
+    options = _skin_options(adding, blood_oxygenation, epidermis_thickness_mm, ior, scattering_scale, like=(lam, params))
     radii = check_radii(radii_mm)
     q, kernel = inverse_kernel(radii, quadrature)
     return _skin_profile(params, lam, radii, q, kernel, adding, *options, bool(entry_fresnel))
 
 
 @eqx.filter_jit
-def _skin_profile(params, lam, radii, q, kernel, adding, blood_oxygenation, epidermis_thickness_mm, ior, entry_fresnel):
+def _skin_profile(
+    params, lam, radii, q, kernel, adding, blood_oxygenation, epidermis_thickness_mm, ior, scattering_scale, entry_fresnel
+):
     layers = skin_layers(
-        params, lam, blood_oxygenation=blood_oxygenation, epidermis_thickness_mm=epidermis_thickness_mm, ior=ior
+        params,
+        lam,
+        blood_oxygenation=blood_oxygenation,
+        epidermis_thickness_mm=epidermis_thickness_mm,
+        ior=ior,
+        scattering_scale=scattering_scale,
     )
     one = jnp.ones((), lam.dtype)
     return _profile(layers, radii, q, kernel, adding, one, one, entry_fresnel)
@@ -115,3 +125,54 @@ def _profile(layers, radii, q, kernel, adding, ior_above, ior_below, entry_fresn
     if entry_fresnel:
         result = result * (1.0 - normal_fresnel_reflectance(top.ior, ior_above))[..., None]
     return result
+
+
+def captured_reflectance(
+    params: SkinParams,
+    wavelengths_nm: ArrayLike,
+    port_radius_mm: float,
+    *,
+    adding: Adding = "directional",
+    blood_oxygenation: ArrayLike = BLOOD_OXYGENATION,
+    epidermis_thickness_mm: ArrayLike = EPIDERMIS_THICKNESS_MM,
+    ior: ArrayLike = SKIN_IOR,
+    scattering_scale: ArrayLike = 1.0,
+    quadrature: HankelQuadrature = HankelQuadrature(),
+) -> Float[Array, "*batch n_wavelengths"]:
+    """Diffuse reflectance that re-emerges within ``port_radius_mm`` of a narrow normal beam.
+
+    (1 - F0) int_0^a 2 pi r R(r) dr: what an integrating sphere with a port of radius a collects
+    when the illumination spot is small compared with the port (MODEL.md 13). Light that travels
+    sideways beyond the port is lost; as a -> inf this tends to ``diffuse_reflectance``.
+    """
+    lam = _checked_wavelengths(wavelengths_nm)
+    options = _skin_options(adding, blood_oxygenation, epidermis_thickness_mm, ior, scattering_scale, like=(lam, params))
+    if not (np.isfinite(port_radius_mm) and port_radius_mm > 0):
+        raise SkinfitInputError("port_radius_mm must be a finite radius > 0 mm")
+    q, weights = energy_kernel(port_radius_mm, quadrature)
+    return _skin_captured(params, lam, jnp.asarray(port_radius_mm, lam.dtype), q, weights, adding, *options)
+
+
+@eqx.filter_jit
+def _skin_captured(params, lam, radius, q, weights, adding, blood_oxygenation, epidermis_thickness_mm, ior, scattering_scale):
+    layers = skin_layers(
+        params,
+        lam,
+        blood_oxygenation=blood_oxygenation,
+        epidermis_thickness_mm=epidermis_thickness_mm,
+        ior=ior,
+        scattering_scale=scattering_scale,
+    )
+    return _captured(layers, radius, q, weights, adding)
+
+
+def _captured(layers, radius, q, weights, adding):
+    """(1 - F0) times the energy of the stack's profile within ``radius`` (layers in air above)."""
+    top = layers[0]
+    dtype = jnp.result_type(top.absorption, top.reduced_scattering)
+    q, weights = jnp.asarray(q, dtype), jnp.asarray(weights, dtype)
+    expanded = [jax.tree_util.tree_map(lambda a: jnp.asarray(a)[..., None], layer) for layer in layers]
+    r12 = stack_transfer(expanded, q, adding=adding)
+    smooth = r12 - dipole_transfer(expanded[0].absorption, expanded[0].reduced_scattering, expanded[0].ior, q, expanded[0].thickness)
+    energy = smooth @ weights + dipole_energy(top.absorption, top.reduced_scattering, top.ior, radius, top.thickness)
+    return (1.0 - normal_fresnel_reflectance(top.ior)) * energy

@@ -116,6 +116,7 @@ def diffuse_reflectance(
     blood_oxygenation: ArrayLike = BLOOD_OXYGENATION,
     epidermis_thickness_mm: ArrayLike = EPIDERMIS_THICKNESS_MM,
     ior: ArrayLike = SKIN_IOR,
+    scattering_scale: ArrayLike = 1.0,
 ) -> Float[Array, "*batch n_wavelengths"]:
     """Diffuse reflectance of skin at normal incidence (specular excluded, entry Fresnel included).
 
@@ -126,19 +127,25 @@ def diffuse_reflectance(
         blood_oxygenation: gamma, HbO2 fraction of the blood (DJ2006: 0.75).
         epidermis_thickness_mm: epidermis thickness in mm (DJ2006: 0.25).
         ior: refractive index of both layers (DJ2006: 1.4).
+        scattering_scale: factor on the reduced scattering of both layers (DJ2006: 1).
 
     Returns:
         Array of shape (..., n_wavelengths): (1 - F0) R12(q = 0).
     """
     lam = _checked_wavelengths(wavelengths_nm)
-    options = _skin_options(adding, blood_oxygenation, epidermis_thickness_mm, ior, like=(lam, params))
+    options = _skin_options(adding, blood_oxygenation, epidermis_thickness_mm, ior, scattering_scale, like=(lam, params))
     return _skin_reflectance(params, lam, adding, *options)
 
 
 @eqx.filter_jit
-def _skin_reflectance(params, lam, adding, blood_oxygenation, epidermis_thickness_mm, ior):
+def _skin_reflectance(params, lam, adding, blood_oxygenation, epidermis_thickness_mm, ior, scattering_scale):
     layers = skin_layers(
-        params, lam, blood_oxygenation=blood_oxygenation, epidermis_thickness_mm=epidermis_thickness_mm, ior=ior
+        params,
+        lam,
+        blood_oxygenation=blood_oxygenation,
+        epidermis_thickness_mm=epidermis_thickness_mm,
+        ior=ior,
+        scattering_scale=scattering_scale,
     )
     r12 = stack_transfer(layers, 0.0, adding=adding)
     return (1.0 - normal_fresnel_reflectance(ior[..., None])) * r12
@@ -148,7 +155,7 @@ def _checked_wavelengths(wavelengths_nm) -> jax.Array:
     return _validate.wavelengths(wavelengths_nm, low=chrom.WAVELENGTH_RANGE_NM[0], high=chrom.WAVELENGTH_RANGE_NM[1])
 
 
-def _skin_options(adding, blood_oxygenation, epidermis_thickness_mm, ior, *, like):
+def _skin_options(adding, blood_oxygenation, epidermis_thickness_mm, ior, scattering_scale, *, like):
     """Validate the skin-model options; return the numeric ones as arrays (traced, not static, under jit).
 
     They take the floating dtype of ``like`` (wavelengths and parameters), so float32 inputs compute
@@ -158,6 +165,7 @@ def _skin_options(adding, blood_oxygenation, epidermis_thickness_mm, ior, *, lik
     _validate.check_range("blood_oxygenation", blood_oxygenation, 0.0, 1.0)
     _validate.check_range("epidermis_thickness_mm", epidermis_thickness_mm, 1e-9, 1e3, unit="mm")
     _validate.check_range("ior", ior, 1.0, 3.0)
+    _validate.check_range("scattering_scale", scattering_scale, 1e-3, 1e3)
     dtype = jnp.result_type(*jax.tree_util.tree_leaves(like))
     return tuple(
         _validate.as_float_array(name, value).astype(dtype)
@@ -165,5 +173,6 @@ def _skin_options(adding, blood_oxygenation, epidermis_thickness_mm, ior, *, lik
             ("blood_oxygenation", blood_oxygenation),
             ("epidermis_thickness_mm", epidermis_thickness_mm),
             ("ior", ior),
+            ("scattering_scale", scattering_scale),
         )
     )

@@ -1,0 +1,131 @@
+"""What a spectral fit can vary: the skin parameters plus the terms real measurements need.
+
+Each variable has a physical range; the solver works on an unbounded variable u with
+value = low + (high - low) * sigmoid(u), so every iterate stays inside its range.
+
+The measurement model is
+
+    measured(lambda) = calibration_scale * (diffuse(lambda) + specular_offset)
+
+where ``diffuse`` is the DJ2006 diffuse reflectance (with ``blood_oxygenation``,
+``epidermis_thickness_mm`` and ``scattering_scale`` as model options), or, with a finite
+measurement port, the part of it that re-emerges within the port (``captured_reflectance``).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from .params import SkinParams
+
+
+@dataclasses.dataclass(frozen=True)
+class FitVariable:
+    """One fit variable: its range, its value when fixed, and what it means."""
+
+    low: float
+    high: float
+    default: float | None
+    doc: str
+
+
+VARIABLES: dict[str, FitVariable] = {
+    "melanin": FitVariable(0.0, 1.0, None, "C_m, epidermal melanin volume fraction"),
+    "melanin_blend": FitVariable(0.0, 1.0, None, "beta_m, eumelanin fraction of the melanin"),
+    "haemoglobin": FitVariable(0.0, 1.0, None, "C_h, dermal blood volume fraction"),
+    "blood_oxygenation": FitVariable(0.0, 1.0, 0.75, "HbO2 fraction of the blood (DJ2006: 0.75)"),
+    "epidermis_thickness_mm": FitVariable(0.01, 1.0, 0.25, "epidermis thickness in mm (DJ2006: 0.25)"),
+    "scattering_scale": FitVariable(0.2, 5.0, 1.0, "factor on the reduced scattering of both layers (DJ2006: 1)"),
+    "specular_offset": FitVariable(
+        0.0, 0.3, 0.0, "additive surface reflection, for hemispherical instruments that include it (~0.028)"
+    ),
+    "calibration_scale": FitVariable(0.5, 2.0, 1.0, "multiplicative calibration of the instrument"),
+}
+
+CHROMOPHORES = ("melanin", "melanin_blend", "haemoglobin")
+
+#: Where a free variable starts when no table covers it (and it has no fixed value).
+STARTS = {"specular_offset": 0.02}
+
+
+def to_unbounded(name: str, value):
+    """u such that ``from_unbounded(name, u) == value`` (values at a bound move just inside it)."""
+    var = VARIABLES[name]
+    frac = np.clip((np.asarray(value, dtype=float) - var.low) / (var.high - var.low), 1e-9, 1 - 1e-9)
+    return np.log(frac) - np.log1p(-frac)
+
+
+def from_unbounded(name: str, u):
+    """Physical value of variable ``name`` from its unbounded coordinate ``u``."""
+    var = VARIABLES[name]
+    return var.low + (var.high - var.low) * jax.nn.sigmoid(u)
+
+
+@dataclasses.dataclass(frozen=True)
+class MeasurementModel:
+    """The measured spectrum as a function of the free variables (hashable: it is static under jit).
+
+    Attributes:
+        free: names of the free variables, in the order of the unbounded vector u.
+        fixed: values of the other variables.
+        port_radius_mm: radius of the measurement port, or None for an infinite port.
+        adding: layer adding mode.
+    """
+
+    free: tuple[str, ...]
+    fixed: tuple[tuple[str, float], ...]
+    port_radius_mm: float | None = None
+    adding: str = "directional"
+
+    def values(self, u) -> dict:
+        """All variables (free from u, the rest fixed) as a dict of arrays of u's batch shape."""
+        values = {name: from_unbounded(name, u[..., i]) for i, name in enumerate(self.free)}
+        for name, value in self.fixed:
+            values[name] = jnp.full(u.shape[:-1], value, u.dtype)
+        return values
+
+    def spectrum(self, u, wavelengths_nm):
+        """Model spectrum at ``wavelengths_nm`` for the unbounded vector u of shape (..., n_free)."""
+        from .profiles import _captured, energy_kernel
+        from .reflectance import _skin_reflectance
+        from .layers import skin_layers
+
+        v = self.values(u)
+        params = SkinParams(v["melanin"], v["melanin_blend"], v["haemoglobin"])
+        one = jnp.ones((), u.dtype)
+        if self.port_radius_mm is None:
+            diffuse = _skin_reflectance(
+                params,
+                wavelengths_nm,
+                self.adding,
+                v["blood_oxygenation"],
+                v["epidermis_thickness_mm"],
+                1.4 * one,
+                v["scattering_scale"],
+            )
+        else:
+            layers = skin_layers(
+                params,
+                wavelengths_nm,
+                blood_oxygenation=v["blood_oxygenation"],
+                epidermis_thickness_mm=v["epidermis_thickness_mm"],
+                ior=1.4 * one,
+                scattering_scale=v["scattering_scale"],
+            )
+            q, weights = energy_kernel(self.port_radius_mm, _PORT_QUADRATURE)
+            diffuse = _captured(layers, jnp.asarray(self.port_radius_mm, u.dtype), q, weights, self.adding)
+        return v["calibration_scale"][..., None] * (diffuse + v["specular_offset"][..., None])
+
+
+def _port_quadrature():
+    from .hankel import HankelQuadrature
+
+    # The port integral needs less than a full profile: 1e-9 of the reflectance is ample for fits.
+    return HankelQuadrature(q_max=120.0, nodes_per_panel=12)
+
+
+_PORT_QUADRATURE = _port_quadrature()

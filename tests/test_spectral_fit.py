@@ -1,0 +1,100 @@
+"""Spectral fitting: recovery of known parameters, statuses, errors and the measurement model."""
+
+import numpy as np
+import pytest
+
+import skinfit
+from skinfit.spectral_fit import FitStatus, fit_spectra
+from skinfit.profiles import captured_reflectance
+
+WL = np.arange(400.0, 701.0, 10.0)
+CHROMOPHORES = ("melanin", "melanin_blend", "haemoglobin")
+
+
+@pytest.fixture(scope="module")
+def batch_fit():
+    """Presets, two interior points, a NaN spectrum and an out-of-range one, in one call."""
+    params = [skinfit.preset(n) for n in skinfit.PRESET_NAMES]
+    params += [skinfit.SkinParams(0.02, 0.3, 0.04), skinfit.SkinParams(0.3, 0.9, 0.002)]
+    true = np.array([[float(getattr(p, k)) for k in CHROMOPHORES] for p in params])
+    spectra = np.stack([np.asarray(skinfit.diffuse_reflectance(p, WL)) for p in params])
+    nan = spectra[0].copy()
+    nan[3] = np.nan
+    spectra = np.vstack([spectra, nan, np.full(WL.size, 3.0)])
+    return true, spectra, fit_spectra(WL, spectra, progress=False)
+
+
+def test_noise_free_spectra_are_recovered(batch_fit):
+    true, _, fit = batch_fit
+    got = np.column_stack([fit.parameters[k] for k in CHROMOPHORES])[: len(true)]
+    np.testing.assert_allclose(got, true, atol=1e-6)
+    assert np.all(fit.status[: len(true)] == FitStatus.SUCCESS)
+    assert np.all(fit.rms_residual[: len(true)] < 1e-8)
+    assert np.all(fit.delta_e2000[: len(true)] < 1e-4)
+    assert fit.parameters["blood_oxygenation"][0] == pytest.approx(0.75)
+
+
+def test_bad_spectra_get_a_status_and_no_nan(batch_fit):
+    true, _, fit = batch_fit
+    assert list(fit.status[len(true) :]) == [FitStatus.BAD_INPUT, FitStatus.BAD_INPUT]
+    for values in (*fit.parameters.values(), *fit.standard_errors.values(), fit.rms_residual, fit.delta_e2000, fit.fitted):
+        assert np.all(np.isfinite(values))
+
+
+def test_standard_errors_match_the_scatter_of_noisy_refits():
+    rng = np.random.default_rng(3)
+    params = skinfit.SkinParams(0.05, 0.6, 0.03)
+    clean = np.asarray(skinfit.diffuse_reflectance(params, WL))
+    noisy = clean * (1 + 0.005 * rng.standard_normal((60, WL.size)))
+    fit = fit_spectra(WL, noisy, progress=False)
+    assert np.all(fit.status == FitStatus.SUCCESS)
+    for name in CHROMOPHORES:
+        scatter = np.std(fit.parameters[name])
+        predicted = np.median(fit.standard_errors[name])
+        assert 0.6 < predicted / scatter < 1.6, (name, predicted, scatter)
+
+
+def test_extended_measurement_model_is_recovered():
+    """Offset, calibration and a finite port, fitted together with the chromophores."""
+    params = skinfit.SkinParams(0.03, 0.5, 0.02)
+    port = 2.5
+    spectrum = 1.05 * (np.asarray(captured_reflectance(params, WL, port)) + 0.03)
+    fit = fit_spectra(
+        WL, spectrum, free=(*CHROMOPHORES, "specular_offset", "calibration_scale"), port_radius_mm=port, progress=False
+    )
+    assert fit.status == FitStatus.SUCCESS
+    expected = {"melanin": 0.03, "melanin_blend": 0.5, "haemoglobin": 0.02, "specular_offset": 0.03, "calibration_scale": 1.05}
+    for name, value in expected.items():
+        assert fit.parameters[name] == pytest.approx(value, abs=1e-5), name
+
+
+@pytest.mark.parametrize(
+    "kwargs, word",
+    [
+        (dict(free=("melanin", "sparkle")), "unknown fit variable"),
+        (dict(free=("melanin", "haemoglobin")), "melanin_blend is not free"),
+        (dict(free=CHROMOPHORES, fixed={"blood_oxygenation": 2.0}), "outside"),
+        (dict(weights=np.ones(3)), "weights"),
+        (dict(port_radius_mm=-1.0), "port_radius_mm"),
+    ],
+)
+def test_usage_errors(kwargs, word):
+    with pytest.raises(skinfit.SkinfitInputError, match=word):
+        fit_spectra(WL, np.full(WL.size, 0.3), progress=False, **kwargs)
+
+
+def test_wavelengths_outside_the_tables_are_a_clear_error():
+    with pytest.raises(skinfit.SkinfitInputError, match="wavelengths_nm"):
+        fit_spectra(np.arange(200.0, 701.0, 10.0), np.full(51, 0.3), progress=False)
+
+
+def test_round_trip_over_the_parameter_box():
+    """1,000 random parameter sets (C_m 0.001-0.5, beta_m 0-1, C_h 0.001-0.1), 400-700 nm every 10 nm."""
+    rng = np.random.default_rng(0)
+    n = 1000
+    true = np.column_stack([rng.uniform(0.001, 0.5, n), rng.uniform(0.0, 1.0, n), rng.uniform(0.001, 0.1, n)])
+    spectra = np.asarray(skinfit.diffuse_reflectance(skinfit.SkinParams(*true.T), WL))
+    fit = fit_spectra(WL, spectra, progress=False)
+    got = np.column_stack([fit.parameters[k] for k in CHROMOPHORES])
+    assert np.all(fit.status == FitStatus.SUCCESS)
+    assert np.max(np.abs(got - true)) <= 1e-6
