@@ -153,6 +153,84 @@ def _cmd_demo(args) -> int:
     return 0
 
 
+def _read_spectra(args) -> tuple[list[str], np.ndarray, np.ndarray]:
+    """Names, wavelengths (nm) and spectra (n, m) from the INPUT file."""
+    path = Path(args.input)
+    if args.format == "nist":
+        from .measurements import read_nist
+
+        nist = read_nist(path)
+        if args.nist_spectra == "average":
+            return list(nist.subjects), nist.wavelengths_nm, nist.average
+        names = [f"{s} R{i + 1}" for s in nist.subjects for i in range(nist.repeats.shape[1])]
+        return names, nist.wavelengths_nm, nist.repeats.reshape(-1, nist.repeats.shape[-1])
+    try:
+        lines = [line for line in path.read_text(encoding="utf-8").splitlines() if line.strip() and not line.startswith("#")]
+    except OSError as err:
+        raise SkinfitInputError(f"cannot read {path}: {err.strerror}") from None
+    header = [h.strip() for h in lines[0].split(",")] if lines else []
+    if not header or header[0] != "wavelength_nm" or len(header) < 2:
+        raise SkinfitInputError(f"{path}: expected a header 'wavelength_nm,<name>,...' (or use --format nist)")
+    try:
+        data = np.array([[float(v) if v.strip() else np.nan for v in line.split(",")] for line in lines[1:]])
+    except ValueError as err:
+        raise SkinfitInputError(f"{path}: non-numeric value ({err})") from None
+    if data.ndim != 2 or data.shape[1] != len(header):
+        raise SkinfitInputError(f"{path}: every row needs {len(header)} values")
+    return header[1:], data[:, 0], data[:, 1:].T
+
+
+def _resample(wavelengths, spectra, grid):
+    lo, hi = wavelengths.min(), wavelengths.max()
+    if grid.min() < lo or grid.max() > hi:
+        raise SkinfitInputError(f"--wavelengths {grid.min():g}-{grid.max():g} nm reaches outside the data ({lo:g}-{hi:g} nm)")
+    order = np.argsort(wavelengths)
+    return np.stack([np.interp(grid, wavelengths[order], s[order]) for s in spectra])
+
+
+def _cmd_fit_spectra(args) -> int:
+    from .spectral_fit import FitStatus, fit_spectra
+
+    names, wavelengths, spectra = _read_spectra(args)
+    grid = parse_wavelengths(args.wavelengths)
+    target = _resample(wavelengths, spectra, grid)
+    fixed = {}
+    for item in args.fixed or []:
+        name, _, value = item.partition("=")
+        try:
+            fixed[name.strip()] = float(value)
+        except ValueError:
+            raise SkinfitInputError(f"--fixed {item!r}: expected NAME=VALUE") from None
+    start = time.perf_counter()
+    fit = fit_spectra(
+        grid, target, free=tuple(args.free.split(",")), fixed=fixed, port_radius_mm=args.port_radius_mm,
+        adding=args.adding, progress=not args.quiet,
+    )
+    elapsed = time.perf_counter() - start
+    columns = list(fit.parameters)
+    header = ["name", *columns, *(f"se_{c}" for c in fit.free), "rms_residual", "delta_e2000", "iterations", "status"]
+    rows = [",".join(header)]
+    for i, name in enumerate(names):
+        values = [f"{fit.parameters[c][i]:.8g}" for c in columns] + [f"{fit.standard_errors[c][i]:.3g}" for c in fit.free]
+        values += [f"{fit.rms_residual[i]:.6g}", f"{fit.delta_e2000[i]:.4g}", str(int(fit.iterations[i])), FitStatus(int(fit.status[i])).name]
+        rows.append(",".join([name.replace(",", " ")] + values))
+    out = Path(args.out)
+    out.parent.mkdir(parents=True, exist_ok=True)
+    out.write_text("\n".join(rows) + "\n", encoding="utf-8")
+    ok = fit.status == FitStatus.SUCCESS
+    print(f"fitted {len(names)} spectra ({ok.sum()} success) at {grid.size} wavelengths in {elapsed:.1f} s; free: {', '.join(fit.free)}")
+    if ok.any():
+        print(f"RMS residual: median {np.median(fit.rms_residual[ok]):.4f}, worst {fit.rms_residual[ok].max():.4f}; "
+              f"CIEDE2000: median {np.median(fit.delta_e2000[ok]):.2f}, worst {fit.delta_e2000[ok].max():.2f}")
+    print(f"wrote {out}")
+    if args.plot:
+        from .plots import plot_fits
+
+        plot_fits(grid, target, fit.fitted, names, fit.rms_residual, args.plot)
+        print(f"wrote {args.plot}")
+    return 0
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = _Parser(prog="skinfit", description="Spectral two-layer skin model (Donner & Jensen 2006) in JAX.")
     sub = parser.add_subparsers(dest="command", required=True, parser_class=_Parser)
@@ -167,6 +245,21 @@ def build_parser() -> argparse.ArgumentParser:
     profiles.add_argument("--illuminant", default="D65", help="illuminant of the RGB profiles (default D65)")
     profiles.add_argument("--out", required=True, help="output file: .csv, .npz or .exr")
     profiles.set_defaults(run=_cmd_profiles)
+
+    fit = sub.add_parser("fit-spectra", help="fit skin parameters to measured reflectance spectra")
+    fit.add_argument("input", help="CSV with a wavelength_nm column and one column per spectrum, or the NIST file")
+    fit.add_argument("--out", required=True, help="output CSV: one row per spectrum")
+    fit.add_argument("--format", choices=("csv", "nist"), default="csv", help="input layout (default csv)")
+    fit.add_argument("--nist-spectra", choices=("average", "repeats"), default="average", help="NIST: subject averages (default) or every repeat")
+    fit.add_argument("--wavelengths", default="400:700:10", help="fit wavelengths in nm, START:STOP:STEP or A,B,C (default 400:700:10)")
+    fit.add_argument("--free", default="melanin,melanin_blend,haemoglobin", help="comma-separated fit variables (see docs); "
+                     "also blood_oxygenation, epidermis_thickness_mm, scattering_scale, specular_offset, calibration_scale")
+    fit.add_argument("--fixed", action="append", metavar="NAME=VALUE", help="value of a variable that is not free (repeatable)")
+    fit.add_argument("--port-radius-mm", type=float, default=None, help="instrument port radius: light beyond it is lost (default: none)")
+    fit.add_argument("--adding", choices=ADDING_MODES, default="directional", help="layer adding (default directional)")
+    fit.add_argument("--plot", help="PNG of measured against fitted spectra (best and worst fits)")
+    fit.add_argument("--quiet", action="store_true", help="no progress bar")
+    fit.set_defaults(run=_cmd_fit_spectra)
 
     demo = sub.add_parser("demo", help="the main job on bundled defaults: reflectance and profiles of the presets")
     demo.add_argument("--out", default="skinfit-demo", help="output folder (default ./skinfit-demo)")

@@ -1,7 +1,10 @@
 """What a spectral fit can vary: the skin parameters plus the terms real measurements need.
 
 Each variable has a physical range; the solver works on an unbounded variable u with
-value = low + (high - low) * sigmoid(u), so every iterate stays inside its range.
+value = low + (high - low) (1 + sin u) / 2 (the MINUIT transform), so every iterate stays inside its
+range. Unlike a logistic map, a solution on a bound (common for real spectra, e.g. no eumelanin) is
+an ordinary quadratic minimum in u, at u = +-pi/2, so the solver converges there instead of drifting
+towards infinity.
 
 The measurement model is
 
@@ -16,7 +19,6 @@ from __future__ import annotations
 
 import dataclasses
 
-import jax
 import jax.numpy as jnp
 import numpy as np
 
@@ -53,16 +55,16 @@ STARTS = {"specular_offset": 0.02}
 
 
 def to_unbounded(name: str, value):
-    """u such that ``from_unbounded(name, u) == value`` (values at a bound move just inside it)."""
+    """u in [-pi/2, pi/2] such that ``from_unbounded(name, u) == value``."""
     var = VARIABLES[name]
-    frac = np.clip((np.asarray(value, dtype=float) - var.low) / (var.high - var.low), 1e-9, 1 - 1e-9)
-    return np.log(frac) - np.log1p(-frac)
+    frac = np.clip((np.asarray(value, dtype=float) - var.low) / (var.high - var.low), 0.0, 1.0)
+    return np.arcsin(2.0 * frac - 1.0)
 
 
 def from_unbounded(name: str, u):
     """Physical value of variable ``name`` from its unbounded coordinate ``u``."""
     var = VARIABLES[name]
-    return var.low + (var.high - var.low) * jax.nn.sigmoid(u)
+    return var.low + (var.high - var.low) * 0.5 * (1.0 + jnp.sin(u))
 
 
 @dataclasses.dataclass(frozen=True)
@@ -90,11 +92,22 @@ class MeasurementModel:
 
     def spectrum(self, u, wavelengths_nm):
         """Model spectrum at ``wavelengths_nm`` for the unbounded vector u of shape (..., n_free)."""
+        return self.spectrum_of_values(self.values(u), wavelengths_nm, u.dtype)
+
+    def spectrum_of_free(self, theta, wavelengths_nm):
+        """Model spectrum for the physical values ``theta`` (..., n_free) of the free variables."""
+        values = {name: theta[..., i] for i, name in enumerate(self.free)}
+        for name, value in self.fixed:
+            values[name] = jnp.full(theta.shape[:-1], value, theta.dtype)
+        return self.spectrum_of_values(values, wavelengths_nm, theta.dtype)
+
+    def spectrum_of_values(self, v: dict, wavelengths_nm, dtype):
+        """Model spectrum from a dict of every variable's physical value."""
+        from .layers import skin_layers
         from .profiles import _captured, energy_kernel
         from .reflectance import _skin_reflectance
-        from .layers import skin_layers
 
-        v = self.values(u)
+        u = jnp.zeros((), dtype)
         params = SkinParams(v["melanin"], v["melanin_blend"], v["haemoglobin"])
         one = jnp.ones((), u.dtype)
         if self.port_radius_mm is None:

@@ -57,3 +57,26 @@ def plot_profiles(radii_mm, wavelengths_nm, profiles: dict[str, np.ndarray], pat
     fig.tight_layout()
     fig.savefig(path, dpi=120)
     plt.close(fig)
+
+
+def plot_fits(wavelengths_nm, measured, fitted, names, rms, path: str | Path, panels: int = 12):
+    """Measured (dots) against fitted (line) spectra: the best and the worst fits by RMS residual."""
+    plt = _pyplot()
+    order = np.argsort(rms)
+    half = min(panels // 2, (len(order) + 1) // 2)
+    pick = list(dict.fromkeys([*order[:half], *order[::-1][:half]]))
+    cols = 4
+    rows = int(np.ceil(len(pick) / cols))
+    fig, axes = plt.subplots(rows, cols, figsize=(3.2 * cols, 2.4 * rows), squeeze=False, sharex=True)
+    for ax, i in zip(axes.ravel(), pick):
+        ax.plot(wavelengths_nm, measured[i], "k.", ms=3, label="measured")
+        ax.plot(wavelengths_nm, fitted[i], "tab:red", label="fit")
+        ax.set_title(f"{names[i]}  rms {rms[i]:.4f}", fontsize=8)
+    for ax in axes.ravel()[len(pick):]:
+        ax.axis("off")
+    axes[0][0].legend(frameon=False, fontsize=7)
+    fig.supxlabel("wavelength (nm)")
+    fig.supylabel("reflectance")
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)

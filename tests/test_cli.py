@@ -56,7 +56,7 @@ def test_profiles_command_writes_each_format(tmp_path):
 
 
 def test_every_command_has_help():
-    for command in ("spectrum", "profiles", "demo"):
+    for command in ("spectrum", "profiles", "fit-spectra", "demo"):
         result = run_cli(command, "--help")
         assert result.returncode == 0 and "usage" in result.stdout
 
@@ -67,3 +67,33 @@ def test_demo_writes_tables_and_plots(tmp_path, capsys):
     assert "light" in out and "dark" in out
     for name in ("reflectance.csv", "profiles_light.csv", "presets.png", "profiles.png"):
         assert (tmp_path / "demo" / name).stat().st_size > 0
+
+
+def test_fit_spectra_csv_round_trip(tmp_path, capsys):
+    import skinfit
+
+    wl = np.arange(400.0, 701.0, 5.0)
+    true = np.array([[0.005, 0.7, 0.005], [0.15, 0.7, 0.01], [0.5, 0.7, 0.05], [0.02, 0.3, 0.04], [0.3, 0.9, 0.002], [0.08, 0.5, 0.02], [0.01, 0.1, 0.06]])
+    spectra = np.asarray(skinfit.diffuse_reflectance(skinfit.SkinParams(*true.T), wl))
+    path = tmp_path / "spectra.csv"
+    names = [f"s{i}" for i in range(len(true))]
+    lines = ["wavelength_nm," + ",".join(names)] + [f"{w:g}," + ",".join(f"{v:.12g}" for v in spectra[:, j]) for j, w in enumerate(wl)]
+    path.write_text("\n".join(lines) + "\n")
+    out = tmp_path / "params.csv"
+    assert main(["fit-spectra", str(path), "--out", str(out), "--quiet", "--plot", str(tmp_path / "fits.png")]) == 0
+    rows = [line.split(",") for line in out.read_text().splitlines()]
+    header, body = rows[0], rows[1:]
+    assert [r[0] for r in body] == names
+    got = np.array([[float(r[header.index(k)]) for k in ("melanin", "melanin_blend", "haemoglobin")] for r in body])
+    np.testing.assert_allclose(got, true, atol=1e-6)
+    assert all(r[header.index("status")] == "SUCCESS" for r in body)
+    assert (tmp_path / "fits.png").stat().st_size > 0
+    assert "RMS residual" in capsys.readouterr().out
+
+
+def test_fit_spectra_rejects_wavelengths_outside_the_data(tmp_path):
+    path = tmp_path / "spectra.csv"
+    path.write_text("wavelength_nm,a\n450,0.3\n500,0.35\n600,0.4\n")
+    result = run_cli("fit-spectra", str(path), "--out", str(tmp_path / "p.csv"), "--wavelengths", "400:700:10")
+    assert result.returncode == 2 and "outside the data" in result.stderr
+    assert len(result.stderr.strip().splitlines()) == 1
