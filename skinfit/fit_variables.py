@@ -103,13 +103,12 @@ class MeasurementModel:
 
     def spectrum_of_values(self, v: dict, wavelengths_nm, dtype):
         """Model spectrum from a dict of every variable's physical value."""
-        from .layers import skin_layers
+        from .layers import SKIN_IOR, skin_layers
         from .profiles import _captured, energy_kernel
         from .reflectance import _skin_reflectance
 
-        u = jnp.zeros((), dtype)
         params = SkinParams(v["melanin"], v["melanin_blend"], v["haemoglobin"])
-        one = jnp.ones((), u.dtype)
+        ior = jnp.asarray(SKIN_IOR, dtype)
         if self.port_radius_mm is None:
             diffuse = _skin_reflectance(
                 params,
@@ -117,7 +116,7 @@ class MeasurementModel:
                 self.adding,
                 v["blood_oxygenation"],
                 v["epidermis_thickness_mm"],
-                1.4 * one,
+                ior,
                 v["scattering_scale"],
             )
         else:
@@ -126,11 +125,11 @@ class MeasurementModel:
                 wavelengths_nm,
                 blood_oxygenation=v["blood_oxygenation"],
                 epidermis_thickness_mm=v["epidermis_thickness_mm"],
-                ior=1.4 * one,
+                ior=ior,
                 scattering_scale=v["scattering_scale"],
             )
             q, weights = energy_kernel(self.port_radius_mm, _PORT_QUADRATURE)
-            diffuse = _captured(layers, jnp.asarray(self.port_radius_mm, u.dtype), q, weights, self.adding)
+            diffuse = _captured(layers, jnp.asarray(self.port_radius_mm, dtype), q, weights, self.adding)
         return v["calibration_scale"][..., None] * (diffuse + v["specular_offset"][..., None])
 
 
