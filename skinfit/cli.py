@@ -117,7 +117,6 @@ def _cmd_profiles(args) -> int:
 def _cmd_demo(args) -> int:
     from .colorimetry import spectrum_to_srgb
     from .plots import plot_profiles, plot_spectra
-    from .reflectance import diffuse_reflectance
     from .tables import profile_table, write_table
 
     out = Path(args.out)
@@ -127,11 +126,10 @@ def _cmd_demo(args) -> int:
     start = time.perf_counter()
     spectra, srgb, spectral_profiles = {}, {}, {}
     for name in PRESET_NAMES:
-        params = preset(name)
-        spectra[name] = np.asarray(diffuse_reflectance(params, wavelengths))
-        srgb[name] = np.asarray(spectrum_to_srgb(spectra[name], wavelengths))
-        table = profile_table(params, wavelengths, radii, label=name)
+        table = profile_table(preset(name), wavelengths, radii, label=name)
         write_table(table, out / f"profiles_{name}.csv")
+        spectra[name] = table.reflectance  # the table already holds the diffuse reflectance
+        srgb[name] = np.asarray(spectrum_to_srgb(spectra[name], wavelengths))
         spectral_profiles[name] = table.spectral
     elapsed = time.perf_counter() - start
     rows = ["wavelength_nm," + ",".join(PRESET_NAMES)]

@@ -103,31 +103,17 @@ class MeasurementModel:
 
     def spectrum_of_values(self, v: dict, wavelengths_nm, dtype):
         """Model spectrum from a dict of every variable's physical value."""
-        from .layers import SKIN_IOR, skin_layers
+        from .layers import SKIN_IOR
         from .profiles import _captured, energy_kernel
-        from .reflectance import _skin_reflectance
+        from .reflectance import _skin_reflectance, _skin_stack
 
         params = SkinParams(v["melanin"], v["melanin_blend"], v["haemoglobin"])
         ior = jnp.asarray(SKIN_IOR, dtype)
+        options = (v["blood_oxygenation"], v["epidermis_thickness_mm"], ior, v["scattering_scale"])
         if self.port_radius_mm is None:
-            diffuse = _skin_reflectance(
-                params,
-                wavelengths_nm,
-                self.adding,
-                v["blood_oxygenation"],
-                v["epidermis_thickness_mm"],
-                ior,
-                v["scattering_scale"],
-            )
+            diffuse = _skin_reflectance(params, wavelengths_nm, self.adding, *options)
         else:
-            layers = skin_layers(
-                params,
-                wavelengths_nm,
-                blood_oxygenation=v["blood_oxygenation"],
-                epidermis_thickness_mm=v["epidermis_thickness_mm"],
-                ior=ior,
-                scattering_scale=v["scattering_scale"],
-            )
+            layers = _skin_stack(params, wavelengths_nm, *options)
             q, weights = energy_kernel(self.port_radius_mm, _PORT_QUADRATURE)
             diffuse = _captured(layers, jnp.asarray(self.port_radius_mm, dtype), q, weights, self.adding)
         return v["calibration_scale"][..., None] * (diffuse + v["specular_offset"][..., None])

@@ -22,13 +22,14 @@ from jaxtyping import Array, ArrayLike, Float
 
 from .adding import Adding
 from .hankel import HankelQuadrature, check_radii, energy_kernel, inverse_kernel
-from .layers import BLOOD_OXYGENATION, EPIDERMIS_THICKNESS_MM, SKIN_IOR, Layer, skin_layers
+from .layers import BLOOD_OXYGENATION, EPIDERMIS_THICKNESS_MM, SKIN_IOR, Layer
 from .multipole import dipole_energy, dipole_profile, dipole_transfer
 from ._validate import SkinfitInputError
 from .params import SkinParams
 from .reflectance import (
     _check_options,
     _skin_options,
+    _skin_stack,
     _check_stack,
     _checked_wavelengths,
     normal_fresnel_reflectance,
@@ -95,14 +96,7 @@ def profile(
 def _skin_profile(
     params, lam, radii, q, kernel, adding, blood_oxygenation, epidermis_thickness_mm, ior, scattering_scale, entry_fresnel
 ):
-    layers = skin_layers(
-        params,
-        lam,
-        blood_oxygenation=blood_oxygenation,
-        epidermis_thickness_mm=epidermis_thickness_mm,
-        ior=ior,
-        scattering_scale=scattering_scale,
-    )
+    layers = _skin_stack(params, lam, blood_oxygenation, epidermis_thickness_mm, ior, scattering_scale)
     one = jnp.ones((), lam.dtype)
     return _profile(layers, radii, q, kernel, adding, one, one, entry_fresnel)
 
@@ -155,14 +149,7 @@ def captured_reflectance(
 
 @eqx.filter_jit
 def _skin_captured(params, lam, radius, q, weights, adding, blood_oxygenation, epidermis_thickness_mm, ior, scattering_scale):
-    layers = skin_layers(
-        params,
-        lam,
-        blood_oxygenation=blood_oxygenation,
-        epidermis_thickness_mm=epidermis_thickness_mm,
-        ior=ior,
-        scattering_scale=scattering_scale,
-    )
+    layers = _skin_stack(params, lam, blood_oxygenation, epidermis_thickness_mm, ior, scattering_scale)
     return _captured(layers, radius, q, weights, adding)
 
 

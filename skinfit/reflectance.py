@@ -137,9 +137,9 @@ def diffuse_reflectance(
     return _skin_reflectance(params, lam, adding, *options)
 
 
-@eqx.filter_jit
-def _skin_reflectance(params, lam, adding, blood_oxygenation, epidermis_thickness_mm, ior, scattering_scale):
-    layers = skin_layers(
+def _skin_stack(params, lam, blood_oxygenation, epidermis_thickness_mm, ior, scattering_scale):
+    """``skin_layers`` with the options in the order ``_skin_options`` returns them."""
+    return skin_layers(
         params,
         lam,
         blood_oxygenation=blood_oxygenation,
@@ -147,6 +147,11 @@ def _skin_reflectance(params, lam, adding, blood_oxygenation, epidermis_thicknes
         ior=ior,
         scattering_scale=scattering_scale,
     )
+
+
+@eqx.filter_jit
+def _skin_reflectance(params, lam, adding, blood_oxygenation, epidermis_thickness_mm, ior, scattering_scale):
+    layers = _skin_stack(params, lam, blood_oxygenation, epidermis_thickness_mm, ior, scattering_scale)
     r12 = stack_transfer(layers, 0.0, adding=adding)
     return (1.0 - normal_fresnel_reflectance(ior[..., None])) * r12
 

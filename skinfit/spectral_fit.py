@@ -213,7 +213,7 @@ class _Solver:
         self.model, self.settings = model, settings
         self.lam = jnp.asarray(wavelengths)
         self.w = jnp.asarray(weights)
-        self.table = _warm_start_table(model, wavelengths, weights, settings)
+        self.table = _build_table(model, wavelengths, weights, tuple(settings.table_shape), tuple(settings.start_groups))
 
     def residual(self, u, target):
         return self.w * (self.model.spectrum(u, self.lam) - target)
@@ -358,13 +358,9 @@ def _solver(model: MeasurementModel, wavelengths: tuple, weights: tuple, setting
     return _Solver(model, wavelengths, weights, settings)
 
 
-def _warm_start_table(model: MeasurementModel, wavelengths: tuple, weights: tuple, settings: SolverSettings) -> tuple:
-    """Grid in u, model spectra, Gauss-Newton step operators and start groups (free chromophores)."""
-    return _build_table(model, wavelengths, weights, tuple(settings.table_shape), tuple(settings.start_groups))
-
-
 @functools.lru_cache(maxsize=8)
 def _build_table(model: MeasurementModel, wavelengths: tuple, weights: tuple, shape: tuple, groups: tuple):
+    """Grid in u, model spectra, Gauss-Newton step operators and start groups (free chromophores)."""
     axes = {
         "melanin": np.geomspace(5e-4, 0.8, shape[0]),
         # interior blends only: starts away from the bounds
