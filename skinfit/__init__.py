@@ -27,6 +27,8 @@ from .colorimetry import (  # noqa: E402
 )
 from .spectral_fit import FitStatus, SolverSettings, SpectralFit, fit_spectra  # noqa: E402
 from .hankel import HankelQuadrature  # noqa: E402
+from .image_fit import ImageFit, PixelStatus, fit_image, fit_pixels, render_maps  # noqa: E402
+from .images import read_linear_rgb  # noqa: E402
 from .layers import Layer, skin_layers  # noqa: E402
 from .measurements import NistSpectra, read_nist  # noqa: E402
 from .multipole import SlabResponse, slab_response  # noqa: E402
@@ -42,6 +44,12 @@ __all__ = [
     "captured_reflectance",
     "fit_spectra",
     "HankelQuadrature",
+    "ImageFit",
+    "PixelStatus",
+    "fit_image",
+    "fit_pixels",
+    "read_linear_rgb",
+    "render_maps",
     "Layer",
     "NistSpectra",
     "PRESET_NAMES",

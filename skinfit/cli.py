@@ -230,6 +230,70 @@ def _cmd_fit_spectra(args) -> int:
     return 0
 
 
+def _cmd_fit_image(args) -> int:
+    import json
+
+    from .colorimetry import srgb_encode
+    from .image_fit import fit_image
+    from .images import write_exr, write_png
+
+    out = Path(args.out)
+    out.mkdir(parents=True, exist_ok=True)
+    for path in args.inputs:
+        stem = Path(path).stem
+        maps_path = out / f"{stem}_maps.exr"
+        if maps_path.exists() and not args.overwrite:  # a rerun of an interrupted batch skips finished images
+            print(f"{path}: {maps_path} exists, skipped (--overwrite to refit)")
+            continue
+        fit = fit_image(
+            path,
+            melanin_blend=args.melanin_blend,
+            input_space=args.input_space,
+            mask=args.mask,
+            illuminant=args.illuminant,
+        )
+        summary = fit.summary()
+        write_png(out / f"{stem}_reconstructed.png", np.asarray(srgb_encode(np.clip(fit.fitted_linear_rgb, 0, 1))))
+        write_png(out / f"{stem}_dE2000.png", _delta_e_image(fit.residual_dE2000))
+        attributes = {"skinfit:source": str(path), "skinfit:illuminant": args.illuminant, "skinfit:summary": json.dumps(summary)}
+        write_exr(maps_path, {k: v.astype(float) for k, v in fit.maps().items()}, attributes)  # last: marks the image done
+        print(
+            f"{path}: {summary['fitted']} of {summary['pixels']} pixels fitted ({100 * summary['fitted_fraction']:.1f} %), "
+            f"CIEDE2000 median {summary['median_dE2000']:.3g}, 95th percentile {summary['p95_dE2000']:.3g}, "
+            f"{summary['seconds']:.1f} s -> {maps_path}"
+        )
+    return 0
+
+
+def _delta_e_image(delta_e: np.ndarray) -> np.ndarray:
+    """CIEDE2000 map as a colour image: black 0 -> yellow 2 (clipped)."""
+    t = np.clip(delta_e / 2.0, 0.0, 1.0)[..., None]
+    return t * np.array([1.0, 0.85, 0.1])
+
+
+def _cmd_render_maps(args) -> int:
+    from .colorimetry import srgb_encode
+    from .image_fit import render_maps
+    from .images import read_exr_channels, write_png
+
+    channels, _ = read_exr_channels(args.maps)
+    missing = [c for c in ("melanin", "haemoglobin", "shading", "melanin_blend") if c not in channels]
+    if missing:
+        raise SkinfitInputError(f"{args.maps} lacks channel(s) {', '.join(missing)}: not a skinfit maps file")
+    fitted = channels.get("status", np.zeros_like(channels["melanin"])) <= 2
+    linear = render_maps(
+        channels["melanin"] * args.scale_melanin,
+        channels["haemoglobin"] * args.scale_haemoglobin,
+        channels["shading"],
+        melanin_blend=channels["melanin_blend"],
+        illuminant=args.illuminant,
+    )
+    linear[~fitted] = 0.0
+    write_png(args.out, np.asarray(srgb_encode(np.clip(linear, 0, 1))))
+    print(f"wrote {args.out}")
+    return 0
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = _Parser(prog="skinfit", description="Spectral two-layer skin model (Donner & Jensen 2006) in JAX.")
     sub = parser.add_subparsers(dest="command", required=True, parser_class=_Parser)
@@ -259,6 +323,24 @@ def build_parser() -> argparse.ArgumentParser:
     fit.add_argument("--plot", help="PNG of measured against fitted spectra (best and worst fits)")
     fit.add_argument("--quiet", action="store_true", help="no progress bar")
     fit.set_defaults(run=_cmd_fit_spectra)
+
+    image = sub.add_parser("fit-image", help="fit melanin, haemoglobin and shading maps to photos or albedo images")
+    image.add_argument("inputs", nargs="+", metavar="INPUT", help="EXR, TIFF, PNG or JPEG files")
+    image.add_argument("--out", required=True, help="output folder (maps EXR, reconstruction and CIEDE2000 PNGs per input)")
+    image.add_argument("--melanin-blend", type=float, default=0.7, help="beta_m for the whole image (default 0.7)")
+    image.add_argument("--input-space", default=None, help="srgb, linear or a colour-science RGB colourspace name")
+    image.add_argument("--mask", default=None, help="mask image: pixels where it is 0 are not fitted")
+    image.add_argument("--illuminant", default="D65", help="illuminant of the camera model (default D65)")
+    image.add_argument("--overwrite", action="store_true", help="refit images whose maps already exist")
+    image.set_defaults(run=_cmd_fit_image)
+
+    render = sub.add_parser("render-maps", help="render (edited) parameter maps to an sRGB image")
+    render.add_argument("maps", metavar="MAPS.exr")
+    render.add_argument("--out", required=True, help="PNG to write")
+    render.add_argument("--scale-haemoglobin", type=float, default=1.0, help="e.g. 1.5 for a blush")
+    render.add_argument("--scale-melanin", type=float, default=1.0)
+    render.add_argument("--illuminant", default="D65")
+    render.set_defaults(run=_cmd_render_maps)
 
     demo = sub.add_parser("demo", help="the main job on bundled defaults: reflectance and profiles of the presets")
     demo.add_argument("--out", default="skinfit-demo", help="output folder (default ./skinfit-demo)")
