@@ -17,6 +17,7 @@ from pathlib import Path
 import numpy as np
 
 import skinfit
+from benchmarks.fit_spectra import box_spectra
 
 KEYS = ("melanin", "melanin_blend", "haemoglobin")
 
@@ -27,10 +28,8 @@ def main(argv=None):
     parser.add_argument("--noise", type=float, default=0.005)
     parser.add_argument("--out", default="benchmarks/results")
     args = parser.parse_args(argv)
-    wl = np.arange(400.0, 701.0, 10.0)
     rng = np.random.default_rng(11)
-    true = np.column_stack([rng.uniform(0.001, 0.5, args.n), rng.uniform(0, 1, args.n), rng.uniform(0.001, 0.1, args.n)])
-    clean = np.asarray(skinfit.diffuse_reflectance(skinfit.SkinParams(*true.T), wl))
+    wl, true, clean = box_spectra(args.n, rng)
     noisy = clean * (1 + args.noise * rng.standard_normal(clean.shape))
     fit = skinfit.fit_spectra(wl, noisy, progress=False)
     result = {"date": time.strftime("%Y-%m-%d"), "spectra": args.n, "noise": args.noise,

@@ -28,6 +28,14 @@ from skinfit.spectral_fit import fit_spectra
 KEYS = ("melanin", "melanin_blend", "haemoglobin")
 
 
+def box_spectra(n, rng):
+    """Wavelengths (400-700 nm / 10 nm), n random (C_m, beta_m, C_h) in the issue's box
+    (0.001-0.5, 0-1, 0.001-0.1) and their model spectra."""
+    wl = np.arange(400.0, 701.0, 10.0)
+    true = np.column_stack([rng.uniform(0.001, 0.5, n), rng.uniform(0, 1, n), rng.uniform(0.001, 0.1, n)])
+    return wl, true, np.asarray(skinfit.diffuse_reflectance(skinfit.SkinParams(*true.T), wl))
+
+
 def main(argv=None):
     parser = argparse.ArgumentParser(description=__doc__)
     parser.add_argument("--n", type=int, default=10_000)
@@ -35,10 +43,7 @@ def main(argv=None):
     parser.add_argument("--repeats", type=int, default=3)
     parser.add_argument("--out", default="benchmarks/results")
     args = parser.parse_args(argv)
-    wl = np.arange(400.0, 701.0, 10.0)
-    rng = np.random.default_rng(7)
-    true = np.column_stack([rng.uniform(0.001, 0.5, args.n), rng.uniform(0, 1, args.n), rng.uniform(0.001, 0.1, args.n)])
-    spectra = np.asarray(skinfit.diffuse_reflectance(skinfit.SkinParams(*true.T), wl))
+    wl, true, spectra = box_spectra(args.n, np.random.default_rng(7))
 
     start = time.perf_counter()
     fit_spectra(wl, spectra, progress=False)

@@ -32,11 +32,12 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from ._batching import map_batches, pad_size
+from ._linalg import solve_normal
 from ._validate import SkinfitInputError
 from .colorimetry import DEFAULT_ILLUMINANT, linear_srgb_weights
 from .params import SkinParams
 from .reflectance import diffuse_reflectance
-from .spectral_fit import _chunks, _pad_size, _solve_normal
 
 #: The box of the image fit. Three channels cannot tell heavy melanin with much blood from heavy
 #: melanin with little (the colour map folds over: at C_m 0.37 the colours of C_h 0.075 and 0.36
@@ -97,21 +98,16 @@ def colour_table(
         raise SkinfitInputError(f"melanin_blend must be within [0, 1], got {melanin_blend}")
     root = np.linspace(0.0, 1.0, size)
     sm, sh = np.meshgrid(root, root, indexing="ij")
+    all_roots = np.stack([sm.ravel(), sh.ravel()], axis=-1)
     weights = jnp.asarray(linear_srgb_weights(COLOUR_WAVELENGTHS_NM, illuminant))
-
-    @jax.jit
-    def colours(c_m, c_h):
-        reflectance = diffuse_reflectance(SkinParams(c_m, jnp.full_like(c_m, melanin_blend), c_h), COLOUR_WAVELENGTHS_NM)
-        return reflectance @ weights.T
-
-    rgb = np.asarray(colours(jnp.asarray(melanin_max * sm**2), jnp.asarray(haemoglobin_max * sh**2)))
+    exact = jax.jit(_exact_rgb)(jnp.asarray(all_roots), melanin_blend, melanin_max, haemoglobin_max, weights)
+    rgb = np.asarray(exact).reshape(size, size, 3)
     chroma = _chromaticity(rgb.reshape(-1, 3))
     low, high = chroma.min(axis=0), chroma.max(axis=0)
     pad = 0.05 * (high - low)
     low, high = low - pad, high + pad
     centres = [low[k] + (np.arange(cells) + 0.5) * (high[k] - low[k]) / cells for k in range(2)]
     grid = np.stack(np.meshgrid(*centres, indexing="ij"), axis=-1).reshape(-1, 2)
-    all_roots = np.stack([sm.ravel(), sh.ravel()], axis=-1)
     # The colour map folds: one chromaticity can come from two parameter sets of different
     # brightness. Keep the nearest entry and the nearest one far from it in parameters (or the
     # nearest again): the fit tries both and lets the shading decide.
@@ -129,13 +125,9 @@ def _chromaticity(rgb):
     return rgb[..., :2] / np.where(total > 0, total, 1.0)
 
 
-def model_rgb(table_rgb, roots):
-    """Bilinear interpolation of the table at roots (..., 2) = (sqrt C_m, sqrt C_h) in [0, 1]."""
-    return _bilinear(table_rgb, roots)[0]
-
-
 def _bilinear(table_rgb, roots):
-    """Colour (..., 3) and its derivatives with respect to both roots, each (..., 3)."""
+    """Bilinear interpolation of the table at roots (..., 2) in [0, 1]: the colour (..., 3) and its
+    derivatives with respect to both roots, each (..., 3)."""
     size = table_rgb.shape[0]
     x = jnp.clip(roots, 0.0, 1.0) * (size - 1)
     cell = jnp.clip(jnp.floor(x), 0, size - 2)
@@ -152,8 +144,8 @@ def _bilinear(table_rgb, roots):
 def _fit_chunk(table_rgb, inverse_roots, box, target, steps):
     """Warm start from the inverse table, then lock-step Gauss-Newton, for pixels (n, 3).
 
-    Returns the roots (n, 2), the shading (n,), the size of the last step (n,) and the relative
-    residual (n,).
+    Returns the roots (n, 2), the shading (n,), the size of the last step (n,), the relative
+    residual (n,) and the fitted colour (n, 3).
     """
     total = jnp.sum(target, axis=-1, keepdims=True)
     chroma = target[:, :2] / total
@@ -176,11 +168,11 @@ def _fit_chunk(table_rgb, inverse_roots, box, target, steps):
             dk = jnp.sum(target * dm, -1) / mm - tm * 2.0 * jnp.sum(m * dm, -1) / mm**2
             return -(dk[:, None] * m + k[:, None] * dm) * scale[:, None]
 
-        return r, d_residual(dm_a), d_residual(dm_b), k
+        return r, d_residual(dm_a), d_residual(dm_b), k, m
 
     last = jnp.zeros(target.shape[0], target.dtype)
     for _ in range(steps):
-        r, ja, jb, _ = residual_and_jacobian(roots)
+        r, ja, jb, _, _ = residual_and_jacobian(roots)
         # 2x2 normal equations in closed form
         aa, ab, bb = jnp.sum(ja * ja, -1), jnp.sum(ja * jb, -1), jnp.sum(jb * jb, -1)
         ga, gb = jnp.sum(ja * r, -1), jnp.sum(jb * r, -1)
@@ -192,32 +184,41 @@ def _fit_chunk(table_rgb, inverse_roots, box, target, steps):
         new = jnp.clip(roots + jnp.clip(step, -0.05, 0.05), 0.0, 1.0)  # a few table cells at most
         last = jnp.max(jnp.abs(new - roots), axis=-1)
         roots = new
-    r, _, _, shading = residual_and_jacobian(roots)
-    return roots, shading, last, jnp.linalg.norm(r, axis=-1)
+    r, _, _, shading, m = residual_and_jacobian(roots)
+    return roots, shading, last, jnp.linalg.norm(r, axis=-1), shading[:, None] * m
+
+
+@jax.jit
+def _rgb_of_params(columns, weights):
+    """Linear sRGB (shading 1) of (C_m, beta_m, C_h) rows."""
+    reflectance = diffuse_reflectance(SkinParams(columns[:, 0], columns[:, 1], columns[:, 2]), COLOUR_WAVELENGTHS_NM)
+    return reflectance @ weights.T
 
 
 def _exact_rgb(roots, melanin_blend, melanin_max, haemoglobin_max, weights):
     """Linear sRGB (shading 1) of the exact forward model at normalised roots (n, 2)."""
     c_m = melanin_max * jnp.clip(roots[:, 0], 0.0, 1.0) ** 2
     c_h = haemoglobin_max * jnp.clip(roots[:, 1], 0.0, 1.0) ** 2
-    reflectance = diffuse_reflectance(SkinParams(c_m, jnp.full_like(c_m, melanin_blend), c_h), COLOUR_WAVELENGTHS_NM)
-    return reflectance @ weights.T
+    return _rgb_of_params(jnp.stack([c_m, jnp.full_like(c_m, melanin_blend), c_h], axis=-1), weights)
 
 
 @functools.partial(jax.jit, static_argnames=("steps",))
 def _polish_chunk(roots, target, melanin_blend, melanin_max, haemoglobin_max, weights, steps):
     """Gauss-Newton steps on the exact model (the table's interpolation error is ~1e-6, more than
-    haemoglobin changes the colour under heavy melanin). Returns roots, shading, last step size."""
+    haemoglobin changes the colour under heavy melanin). Returns roots, shading, last step size and
+    the fitted colour (n, 3)."""
     scale = 1.0 / jnp.linalg.norm(target, axis=-1)
 
     def projected(r, t, s):
+        """(relative residual, its copy as aux) and the shading k and colour k m."""
         m = _exact_rgb(r[None], melanin_blend, melanin_max, haemoglobin_max, weights)[0]
         k = jnp.dot(t, m) / jnp.dot(m, m)
-        return (t - k * m) * s, k
+        residual = (t - k * m) * s
+        return residual, (residual, k, k * m)
 
     def step(r, t, s):
-        jac, (res, k) = jax.jacfwd(lambda x: (projected(x, t, s)[0], projected(x, t, s)), has_aux=True)(r)
-        delta = _solve_normal(jac.T @ jac, -(jac.T @ res))
+        jac, (res, _, _) = jax.jacfwd(lambda x: projected(x, t, s), has_aux=True)(r)
+        delta = solve_normal(jac.T @ jac, -(jac.T @ res))
         delta = jnp.where(jnp.all(jnp.isfinite(delta)), jnp.clip(delta, -0.05, 0.05), 0.0)
         new = jnp.clip(r + delta, 0.0, 1.0)
         return new, jnp.max(jnp.abs(new - r))
@@ -225,8 +226,8 @@ def _polish_chunk(roots, target, melanin_blend, melanin_max, haemoglobin_max, we
     last = jnp.zeros(target.shape[0], target.dtype)
     for _ in range(steps):
         roots, last = jax.vmap(step)(roots, target, scale)
-    shading = jax.vmap(lambda r, t, s: projected(r, t, s)[1])(roots, target, scale)
-    return roots, shading, last
+    _, (_, shading, fitted) = jax.vmap(lambda r, t, s: projected(r, t, s))(roots, target, scale)
+    return roots, shading, last, fitted
 
 
 def fit_pixels(
@@ -279,37 +280,29 @@ def fit_pixels(
     roots = np.zeros((len(pixels), 2))
     shading = np.zeros(len(pixels))
     last_step = np.zeros(len(pixels))
+    fitted = np.zeros((len(pixels), 3))
     if todo.size:
-        size = _pad_size(todo.size, chunk_size)
-        branches = inverse_roots.shape[2]
-        # table pass: each branch of the fold from its own warm start
-        fits = [np.zeros((todo.size, k)) for k in (2, 1, 1, 1) for _ in range(branches)]
-        fits = [fits[i * branches : (i + 1) * branches] for i in range(4)]  # [quantity][branch]
-        for start, stop, idx in _chunks(todo, size, progress, "fitting pixels"):
-            for k in range(branches):
-                out = _fit_chunk(table_rgb, inverse_roots[:, :, k], box, jnp.asarray(clean[idx]), steps)
-                for quantity, value in zip(fits, out):
-                    quantity[k][start:stop] = np.asarray(value)[: stop - start].reshape(stop - start, -1)
-        branch_roots, branch_shading, branch_step, branch_residual = (
-            np.stack([q[:, 0] if q.shape[1] == 1 else q for q in quantity]) for quantity in fits
-        )
-        choice = _choose_branch(branch_roots, branch_shading, branch_residual, shading_reference)
-        pick = lambda a: np.take_along_axis(a, choice[None, :, None] if a.ndim == 3 else choice[None], 0)[0]  # noqa: E731
-        roots[todo], shading[todo], last_step[todo] = pick(branch_roots), pick(branch_shading), pick(branch_step)
+        size = pad_size(todo.size, chunk_size)
+        # table pass: each branch of the fold from its own warm start; per branch the outputs of
+        # _fit_chunk for every pixel to fit (roots, shading, last step, residual, colour)
+        branches = [
+            map_batches(lambda t: _fit_chunk(table_rgb, starts, box, t, steps), (clean[todo],), size, progress, "fitting pixels")
+            for starts in jnp.moveaxis(inverse_roots, 2, 0)
+        ]
+        stacked = [np.stack(quantity) for quantity in zip(*branches)]  # each (branches, n, ...)
+        choice = _choose_branch(stacked[0], stacked[1], stacked[3], shading_reference)
+        chosen = [q[choice, np.arange(todo.size)] for q in stacked]
+        roots[todo], shading[todo], last_step[todo], fitted[todo] = chosen[0], chosen[1], chosen[2], chosen[4]
         if polish_steps:  # exact-model polish of the chosen branch; stragglers gathered for more
             active, rounds = todo, 0
             while active.size and rounds <= max_polish_rounds:
                 count = polish_steps if rounds == 0 else 4
                 batch = size if rounds == 0 else min(size, 1024)
-                for start, stop, idx in _chunks(active, batch, False, ""):
-                    out = _polish_chunk(jnp.asarray(roots[idx]), jnp.asarray(clean[idx]), *exact, count)
-                    roots[active[start:stop]], shading[active[start:stop]], last_step[active[start:stop]] = (
-                        np.asarray(v)[: stop - start] for v in out
-                    )
+                polish = lambda t, r: _polish_chunk(r, t, *exact, count)  # noqa: E731
+                out = map_batches(polish, (clean[active], roots[active]), batch)
+                roots[active], shading[active], last_step[active], fitted[active] = out
                 active = active[last_step[active] > step_tol]
                 rounds += 1
-    colour_of = (lambda r: _exact_rgb(r, *exact)) if polish_steps else (lambda r: model_rgb(table_rgb, r))  # noqa: E731
-    fitted = shading[:, None] * np.asarray(jax.jit(colour_of)(jnp.asarray(roots)))
     delta_e = np.zeros(len(pixels))
     if todo.size:
         delta_e[todo] = _delta_e2000_rgb(clean[todo], fitted[todo], illuminant)
@@ -422,13 +415,13 @@ def fit_image(
 
     start = time.perf_counter()
     alpha = None
-    if isinstance(image, (str, bytes)) or hasattr(image, "__fspath__"):
+    if _is_path(image):
         rgb, alpha = read_linear_rgb(image, input_space)
     else:
         rgb = np.asarray(image, dtype=float)
         if rgb.ndim != 3 or rgb.shape[-1] != 3:
             raise SkinfitInputError(f"expected an image of shape (h, w, 3), got {rgb.shape}")
-    if isinstance(mask, (str, bytes)) or hasattr(mask, "__fspath__"):
+    if _is_path(mask):
         mask_rgb, mask_alpha = read_linear_rgb(mask, "linear")
         mask = mask_rgb.max(axis=-1) if mask_alpha is None else mask_alpha
     if mask is not None:
@@ -442,6 +435,10 @@ def fit_image(
     return ImageFit(**maps, fitted_linear_rgb=fitted, seconds=time.perf_counter() - start)
 
 
+def _is_path(value) -> bool:
+    return isinstance(value, (str, bytes)) or hasattr(value, "__fspath__")
+
+
 def render_maps(
     melanin,
     haemoglobin,
@@ -449,16 +446,19 @@ def render_maps(
     *,
     melanin_blend=0.7,
     illuminant: str = DEFAULT_ILLUMINANT,
+    chunk_size: int = 65536,
 ) -> np.ndarray:
-    """Linear sRGB (h, w, 3) of parameter maps through the exact forward model and camera model."""
-    from .colorimetry import spectrum_to_linear_srgb
+    """Linear sRGB (h, w, 3) of parameter maps through the exact forward model and camera model.
 
+    Maps (h, w) in physical units (volume fractions; the blend may be a map or one value) are
+    clipped to [0, 1]; pixels go through in fixed-size chunks, so memory stays bounded.
+    """
     melanin, haemoglobin, shading = (np.asarray(a, dtype=float) for a in (melanin, haemoglobin, shading))
     blend = np.broadcast_to(np.asarray(melanin_blend, dtype=float), melanin.shape)
-    melanin, blend, haemoglobin = (np.clip(a, 0.0, 1.0) for a in (melanin, blend, haemoglobin))
-    rows = []
-    for i in range(melanin.shape[0]):  # row by row: memory stays bounded for large maps
-        params = SkinParams(melanin[i], blend[i], haemoglobin[i])
-        reflectance = diffuse_reflectance(params, COLOUR_WAVELENGTHS_NM)
-        rows.append(np.asarray(spectrum_to_linear_srgb(reflectance, COLOUR_WAVELENGTHS_NM, illuminant=illuminant)))
-    return shading[..., None] * np.stack(rows)
+    columns = np.stack([np.clip(a, 0.0, 1.0).ravel() for a in (melanin, blend, haemoglobin)], axis=-1)
+    weights = jnp.asarray(linear_srgb_weights(COLOUR_WAVELENGTHS_NM, illuminant))
+    (rgb,) = map_batches(
+        lambda c: (_rgb_of_params(c, weights),), (columns,), pad_size(len(columns), chunk_size)
+    )
+    return shading[..., None] * rgb.reshape(*melanin.shape, 3)
+

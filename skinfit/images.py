@@ -28,21 +28,8 @@ def _oiio():
 
 def read_linear_rgb(path: str | os.PathLike, input_space: str | None = None) -> tuple[np.ndarray, np.ndarray | None]:
     """Read an image as linear sRGB, (h, w, 3) float64, and its alpha (h, w) or None."""
-    oiio = _oiio()
     path = Path(path)
-    image = oiio.ImageInput.open(str(path))
-    if image is None:
-        raise SkinfitInputError(f"cannot read image {path}: {oiio.geterror() or 'unknown format'}")
-    try:
-        spec = image.spec()
-        pixels = image.read_image(0, 0, 0, spec.nchannels, oiio.FLOAT)
-        if pixels is None:
-            raise SkinfitInputError(f"cannot read pixels of {path}: {image.geterror()}")
-    finally:
-        image.close()
-    pixels = np.asarray(pixels, dtype=np.float64).reshape(spec.height, spec.width, spec.nchannels)
-    if pixels.size == 0:
-        raise SkinfitInputError(f"{path} is empty")
+    spec, pixels = _read_pixels(path)
     names = [name.upper() for name in spec.channelnames]
     index = {}
     for channel in ("R", "G", "B", "A"):
@@ -108,18 +95,29 @@ def write_exr(path: str | os.PathLike, channels: dict[str, np.ndarray], attribut
 
 def read_exr_channels(path: str | os.PathLike) -> tuple[dict[str, np.ndarray], dict[str, str]]:
     """Channels of an EXR by name, and its string attributes."""
+    spec, data = _read_pixels(Path(path))
+    attributes = {p.name: str(p.value) for p in spec.extra_attribs}
+    return {name: data[..., i] for i, name in enumerate(spec.channelnames)}, attributes
+
+
+def _read_pixels(path: Path):
+    """(spec, pixels (h, w, channels) float64) of the first subimage; unreadable files raise
+    ``SkinfitInputError``."""
     oiio = _oiio()
     image = oiio.ImageInput.open(str(path))
     if image is None:
-        raise SkinfitInputError(f"cannot read {path}: {oiio.geterror()}")
+        raise SkinfitInputError(f"cannot read image {path}: {oiio.geterror() or 'unknown format'}")
     try:
         spec = image.spec()
-        data = np.asarray(image.read_image(0, 0, 0, spec.nchannels, oiio.FLOAT), dtype=np.float64)
-        attributes = {p.name: str(p.value) for p in spec.extra_attribs}
+        pixels = image.read_image(0, 0, 0, spec.nchannels, oiio.FLOAT)
+        if pixels is None:
+            raise SkinfitInputError(f"cannot read pixels of {path}: {image.geterror()}")
     finally:
         image.close()
-    data = data.reshape(spec.height, spec.width, spec.nchannels)
-    return {name: data[..., i] for i, name in enumerate(spec.channelnames)}, attributes
+    pixels = np.asarray(pixels, dtype=np.float64).reshape(spec.height, spec.width, spec.nchannels)
+    if pixels.size == 0:
+        raise SkinfitInputError(f"{path} is empty")
+    return spec, pixels
 
 
 def write_png(path: str | os.PathLike, encoded_rgb: np.ndarray, bits: int = 8) -> None:

@@ -106,15 +106,10 @@ def _profile(layers, radii, q, kernel, adding, ior_above, ior_below, entry_fresn
     top = layers[0]
     dtype = jnp.result_type(top.absorption, top.reduced_scattering)
     q, kernel, radii = (jnp.asarray(a, dtype) for a in (q, kernel, radii))
-    eta_top = top.ior / jnp.asarray(ior_above)
-    # Fields gain a trailing axis over q (or r); everything else broadcasts as before.
-    expanded = [jax.tree_util.tree_map(lambda a: jnp.asarray(a)[..., None], layer) for layer in layers]
-    r12 = stack_transfer(expanded, q, adding=adding, ior_above=ior_above, ior_below=ior_below)
-    smooth = r12 - dipole_transfer(
-        expanded[0].absorption, expanded[0].reduced_scattering, eta_top[..., None], q, expanded[0].thickness
-    )
+    eta_top = (top.ior / jnp.asarray(ior_above))[..., None]
+    smooth = _smooth_transfer(layers, q, adding, ior_above, ior_below)
     result = smooth @ kernel + dipole_profile(
-        expanded[0].absorption, expanded[0].reduced_scattering, eta_top[..., None], radii, expanded[0].thickness
+        top.absorption[..., None], top.reduced_scattering[..., None], eta_top, radii, top.thickness[..., None]
     ).astype(smooth.dtype)
     if entry_fresnel:
         result = result * (1.0 - normal_fresnel_reflectance(top.ior, ior_above))[..., None]
@@ -158,8 +153,17 @@ def _captured(layers, radius, q, weights, adding):
     top = layers[0]
     dtype = jnp.result_type(top.absorption, top.reduced_scattering)
     q, weights = jnp.asarray(q, dtype), jnp.asarray(weights, dtype)
-    expanded = [jax.tree_util.tree_map(lambda a: jnp.asarray(a)[..., None], layer) for layer in layers]
-    r12 = stack_transfer(expanded, q, adding=adding)
-    smooth = r12 - dipole_transfer(expanded[0].absorption, expanded[0].reduced_scattering, expanded[0].ior, q, expanded[0].thickness)
+    smooth = _smooth_transfer(layers, q, adding, 1.0, 1.0)
     energy = smooth @ weights + dipole_energy(top.absorption, top.reduced_scattering, top.ior, radius, top.thickness)
     return (1.0 - normal_fresnel_reflectance(top.ior)) * energy
+
+
+def _smooth_transfer(layers, q, adding, ior_above, ior_below):
+    """R12(q) minus the top layer's dipole at frequencies q (trailing axis): the smooth part that
+    the quadrature transforms; the dipole itself is transformed in closed form."""
+    top = layers[0]
+    eta_top = (top.ior / jnp.asarray(ior_above))[..., None]
+    # Fields gain a trailing axis over q; everything else broadcasts as before.
+    expanded = [jax.tree_util.tree_map(lambda a: jnp.asarray(a)[..., None], layer) for layer in layers]
+    r12 = stack_transfer(expanded, q, adding=adding, ior_above=ior_above, ior_below=ior_below)
+    return r12 - dipole_transfer(expanded[0].absorption, expanded[0].reduced_scattering, eta_top, q, expanded[0].thickness)

@@ -32,6 +32,8 @@ import optimistix as optx
 
 from . import chromophores as chrom
 from ._validate import SkinfitInputError, wavelengths as _check_wavelengths
+from ._batching import map_batches, pad_size
+from ._linalg import solve_normal
 from .fit_table import build_fit_table
 from .fit_variables import CHROMOPHORES, VARIABLES, MeasurementModel, from_unbounded
 
@@ -238,7 +240,7 @@ class _Solver:
         """Cost at u and the Gauss-Newton step from u."""
         jacobian, r = jax.jacfwd(lambda x: (self.residual(x, target),) * 2, has_aux=True)(u)
         cost = jnp.sum(r**2)
-        step = _solve_normal(jacobian.T @ jacobian, -(jacobian.T @ r))
+        step = solve_normal(jacobian.T @ jacobian, -(jacobian.T @ r))
         ok = jnp.all(jnp.isfinite(step)) & jnp.isfinite(cost)
         # u spans pi: a longer step is a poor linearisation, never a useful move
         return jnp.where(ok, cost, jnp.inf), jnp.where(ok, jnp.clip(step, -0.5, 0.5), 0.0)
@@ -300,19 +302,15 @@ class _Solver:
     def run(self, target: np.ndarray, chunk_size: int, progress):
         """Fit every row of ``target``; returns (u, steps, converged)."""
         s = self.settings
-        n, n_free = len(target), len(self.model.free)
-        u = np.zeros((n, n_free))
-        done = np.zeros(n, dtype=bool)
+        n = len(target)
         count = min(s.candidates, self.table.grid_u.shape[0])
         steps = np.full(n, count * (s.start_steps + 1) + s.refine_steps, dtype=np.int64)
-        for start, stop, chunk in _chunks(target, _pad_size(n, chunk_size), progress, "fitting spectra"):
-            out = self._warm_start(jnp.asarray(chunk))
-            u[start:stop], done[start:stop] = (np.asarray(a)[: stop - start] for a in out)
+        u, done = map_batches(self._warm_start, (target,), pad_size(n, chunk_size), progress, "fitting spectra")
 
         # The few that have not converged: more Gauss-Newton steps in smaller gathered batches.
         todo = np.flatnonzero(~done)
         if todo.size:
-            u[todo], done[todo] = self._batched(self._continue, u[todo], target[todo], _FALLBACK_BATCH)
+            u[todo], done[todo] = map_batches(self._continue, (u[todo], target[todo]), _GATHERED_BATCH)
             steps[todo] += s.continue_steps + 1
         # First-order optimal on a bound is converged (Gauss-Newton converges only linearly there).
         todo = np.flatnonzero(~done)
@@ -321,30 +319,9 @@ class _Solver:
         todo = np.flatnonzero(~done)
         if todo.size:  # Levenberg-Marquardt for the rest
             resume = lambda a, t: self._resume(a, t, s.max_steps)  # noqa: E731
-            u[todo], steps_lm, done[todo] = self._batched(resume, u[todo], target[todo], _FALLBACK_BATCH)
+            u[todo], steps_lm, done[todo] = map_batches(resume, (u[todo], target[todo]), _GATHERED_BATCH)
             steps[todo] += steps_lm
         return u, steps, done
-
-    def _batched(self, function, u0: np.ndarray, target: np.ndarray, batch: int):
-        """``function(u, target)`` over fixed-size batches (a varying count should not recompile)."""
-        outputs = None
-        for start, stop, idx in _chunks(np.arange(len(u0)), batch, False, ""):
-            out = [np.asarray(a)[: stop - start] for a in function(jnp.asarray(u0[idx]), jnp.asarray(target[idx]))]
-            if outputs is None:
-                outputs = [np.zeros((len(u0), *a.shape[1:]), a.dtype) for a in out]
-            for full, part in zip(outputs, out):
-                full[start:stop] = part
-        return tuple(outputs)
-
-    @eqx.filter_jit
-    def _residual_batch(self, u, target):
-        return jax.vmap(self.residual)(u, target)
-
-    def _residuals(self, u, target, chunk_size):
-        out = np.zeros_like(target)
-        for start, stop, idx in _chunks(np.arange(len(u)), _pad_size(len(u), chunk_size), False, ""):
-            out[start:stop] = np.asarray(self._residual_batch(jnp.asarray(u[idx]), jnp.asarray(target[idx])))[: stop - start]
-        return out
 
     # -- diagnostics ------------------------------------------------------------------------
     @eqx.filter_jit
@@ -369,13 +346,7 @@ class _Solver:
 
     def diagnostics(self, u, target, chunk_size):
         """Fitted spectra, standard errors and the stationarity measure of each fit."""
-        fitted = np.zeros_like(target)
-        errors = np.zeros_like(u)
-        stationarity = np.zeros(len(u))
-        for start, stop, idx in _chunks(np.arange(len(u)), _pad_size(len(u), chunk_size), False, ""):
-            out = self._diagnose(jnp.asarray(u[idx]), jnp.asarray(target[idx]))
-            fitted[start:stop], errors[start:stop], stationarity[start:stop] = (np.asarray(a)[: stop - start] for a in out)
-        return fitted, errors, stationarity
+        return map_batches(self._diagnose, (u, target), pad_size(len(u), chunk_size))
 
 
 def _stationarity(free, theta, gradient, cost):
@@ -394,63 +365,14 @@ def _stationarity(free, theta, gradient, cost):
     return jnp.max(jnp.abs(projected) * span) / jnp.maximum(cost, 1e-300)
 
 
-def _solve_normal(a, b):
-    """Solve the small SPD system a x = b by an unrolled Cholesky factorisation.
-
-    Batched LAPACK calls on tiny matrices cost more than the model evaluation on CPU; this is a few
-    dozen fused multiply-adds. The diagonal is floored relative to its largest entry so that a
-    direction the data do not constrain (a zero Jacobian column) gets a zero step, not a NaN.
-    """
-    n = a.shape[-1]
-    floor = 1e-12 * jnp.max(jnp.diagonal(a)) + 1e-300
-    lower = [[None] * n for _ in range(n)]
-    for j in range(n):
-        diag = a[j, j] + floor - sum(lower[j][k] ** 2 for k in range(j))
-        lower[j][j] = jnp.sqrt(jnp.maximum(diag, floor))
-        for i in range(j + 1, n):
-            lower[i][j] = (a[i, j] - sum(lower[i][k] * lower[j][k] for k in range(j))) / lower[j][j]
-    y = [None] * n
-    for i in range(n):
-        y[i] = (b[i] - sum(lower[i][k] * y[k] for k in range(i))) / lower[i][i]
-    x = [None] * n
-    for i in reversed(range(n)):
-        x[i] = (y[i] - sum(lower[k][i] * x[k] for k in range(i + 1, n))) / lower[i][i]
-    return jnp.stack(x)
-
-
 @functools.lru_cache(maxsize=8)
 def _solver(model: MeasurementModel, wavelengths: tuple, weights: tuple, settings: SolverSettings) -> _Solver:
     """One solver (table and compiled functions) per problem: later calls reuse its compilations."""
     return _Solver(model, wavelengths, weights, settings)
 
 
-_FALLBACK_BATCH = 64
-
-
-def _pad_size(n: int, chunk_size: int) -> int:
-    """Batch size for n items: the chunk size, or the next power of two below it (few compilations)."""
-    size = 1
-    while size < min(n, chunk_size):
-        size *= 2
-    return min(size, chunk_size)
-
-
-def _chunks(items: np.ndarray, size: int, progress, desc: str):
-    """(start, stop, padded chunk) over ``items`` in fixed-size chunks; the last is padded by repetition."""
-    n = len(items)
-    starts = range(0, n, size)
-    if progress is None:
-        progress = len(starts) > 1
-    if progress:
-        from tqdm.auto import tqdm
-
-        starts = tqdm(starts, desc=desc, unit="chunk")
-    for start in starts:
-        stop = min(start + size, n)
-        chunk = items[start:stop]
-        if len(chunk) < size:
-            chunk = np.concatenate([chunk, np.repeat(chunk[-1:], size - len(chunk), axis=0)])
-        yield start, stop, chunk
+#: Batch size of the gathered stragglers (Gauss-Newton continuation and Levenberg-Marquardt).
+_GATHERED_BATCH = 64
 
 
 def _delta_e2000(wavelengths, measured, fitted) -> np.ndarray:

@@ -101,13 +101,13 @@ def test_round_trip_over_the_parameter_box():
 
 
 def test_unrolled_normal_solve_matches_lapack_and_survives_a_dead_direction():
-    from skinfit.spectral_fit import _solve_normal
+    from skinfit._linalg import solve_normal
 
     rng = np.random.default_rng(5)
     for n in range(1, 9):
         jac = rng.normal(size=(31, n))
         b = rng.normal(size=n)
-        np.testing.assert_allclose(np.asarray(_solve_normal(jac.T @ jac, b)), np.linalg.solve(jac.T @ jac, b), rtol=1e-9)
+        np.testing.assert_allclose(np.asarray(solve_normal(jac.T @ jac, b)), np.linalg.solve(jac.T @ jac, b), rtol=1e-9)
     jac[:, 2] = 0.0  # a variable the data do not see (a zero Jacobian column on a bound)
-    step = np.asarray(_solve_normal(jac.T @ jac, jac.T @ rng.normal(size=31)))
+    step = np.asarray(solve_normal(jac.T @ jac, jac.T @ rng.normal(size=31)))
     assert np.all(np.isfinite(step)) and step[2] == 0.0
