@@ -4,21 +4,26 @@ Camera model: a pixel's linear sRGB (D65 white = 1) is
 
     rgb = shading * M W R(lambda; C_m, beta_m, C_h)
 
-with R the DJ2006 diffuse reflectance, W the CIE 1931 2-degree colour matching functions weighted by
-the illuminant (D65 by default, Bradford-adapted to D65 otherwise) and M the XYZ -> linear sRGB
-matrix (``skinfit.colorimetry``). Three channels carry three unknowns per pixel: C_m, C_h and the
-shading; the melanin blend is fixed for the whole image.
+with R the DJ2006 diffuse reflectance at 400-700 nm / 10 nm, W the CIE 1931 2-degree colour
+matching functions weighted by the illuminant (D65 by default, Bradford-adapted to D65 otherwise)
+and M the XYZ -> linear sRGB matrix (``skinfit.colorimetry``). Three channels carry three unknowns
+per pixel: C_m, C_h and the shading; the melanin blend is one value for the whole image (given, or
+fitted once by ``fit_melanin_blend``).
 
-Fast path. With the blend fixed, the model colour is a smooth function of two variables, tabulated
-once on a fine grid in (sqrt C_m, sqrt C_h) in [0, 1]^2 (square roots spread the grid where the
-colour changes fastest, near zero) and interpolated bilinearly. Per pixel:
+Per pixel, over fixed-size chunks compiled once:
 
-1. warm start: the coarse-grid entry whose chromaticity is closest (largest cosine);
-2. polish: Gauss-Newton on the interpolated table in lock-step over a chunk, with the shading
-   eliminated in closed form (variable projection: for a colour m the best shading is
-   t.m / m.m), the residual relative to the pixel's brightness so that dark and bright pixels
-   weigh alike, and the unknowns projected onto the box after each step.
+1. warm start: the inverse table (``skinfit.colour_table``) gives one or two starts from the
+   pixel's chromaticity; the second (a second branch of the fold) only where it differs;
+2. solve: Gauss-Newton in lock-step on the model's colour spline (exact to ~3e-7 in linear sRGB),
+   with the shading eliminated in closed form (variable projection: for a colour m the best
+   shading is t.m / m.m), the residual relative to the pixel's brightness so that dark and bright
+   pixels weigh alike, and the roots projected onto the box; converged when the step falls below
+   ``step_tol``. Pixels still moving are gathered for more steps, and what remains goes to
+   optimistix's Levenberg-Marquardt;
+3. optionally (``exact_steps``), Gauss-Newton steps on the exact forward model remove the
+   spline's last ~1e-7.
 
+Where both branches fit, the one whose shading is nearest the image's typical shading wins.
 Pixels that cannot be fitted get a status code and zeros, never NaN.
 """
 
@@ -28,25 +33,16 @@ import dataclasses
 import enum
 import functools
 
+import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
+import optimistix as optx
 
 from ._batching import map_batches, pad_size
-from ._linalg import solve_normal
 from ._validate import SkinfitInputError
-from .colorimetry import DEFAULT_ILLUMINANT, linear_srgb_weights
-from .params import SkinParams
-from .reflectance import diffuse_reflectance
-
-#: The box of the image fit. Three channels cannot tell heavy melanin with much blood from heavy
-#: melanin with little (the colour map folds over: at C_m 0.37 the colours of C_h 0.075 and 0.36
-#: agree to CIEDE2000 0.02), so the haemoglobin range stops at physiological blood fractions.
-MELANIN_MAX = 0.5
-HAEMOGLOBIN_MAX = 0.15
-
-#: Wavelengths of the colour integral (nm).
-COLOUR_WAVELENGTHS_NM = np.arange(400.0, 701.0, 10.0)
+from .colorimetry import DEFAULT_ILLUMINANT, delta_e2000, linear_srgb_to_lab, linear_srgb_weights
+from .colour_table import COLOUR_WAVELENGTHS_NM, colour_table, model_rgb, params_rgb, spline_rgb
 
 
 class PixelStatus(enum.IntEnum):
@@ -61,173 +57,121 @@ class PixelStatus(enum.IntEnum):
     SATURATED = 6  #: a channel at the clipping level
 
 
-@dataclasses.dataclass(frozen=True)
-class ColourTable:
-    """The skin model's linear sRGB (shading 1) over the parameter box, and its inverse.
+def _spline_colour(coefficients):
+    return lambda roots: spline_rgb(coefficients, roots)
 
-    ``rgb[i, j]`` is the colour at C_m = melanin_max (i / (size - 1))^2 and
-    C_h = haemoglobin_max (j / (size - 1))^2; the fit works on these normalised roots.
-    ``inverse_roots[a, b, k]`` are two roots whose chromaticity is near the centre of cell (a, b) of
-    a grid over chromaticity (r / (r + g + b), g / (r + g + b)) spanning ``chromaticity_box`` =
-    (r_low, r_high, g_low, g_high): the nearest, and the nearest on another branch of the fold
-    (the same root if there is none). Warm starts, one lookup per pixel.
+
+def _exact_colour(melanin_blend, melanin_max, haemoglobin_max, weights):
+    """Exact model colour and its derivatives along both roots, (n, 3) each."""
+
+    def one(roots):
+        colour = lambda r: model_rgb(r[None], melanin_blend, melanin_max, haemoglobin_max, weights)[0]  # noqa: E731
+        value, du = jax.jvp(colour, (roots,), (jnp.array([1.0, 0.0], roots.dtype),))
+        dv = jax.jvp(colour, (roots,), (jnp.array([0.0, 1.0], roots.dtype),))[1]
+        return value, du, dv
+
+    return jax.vmap(one)
+
+
+def _dot3(a, b):
+    """Dot product over a last axis of length 3, written out: XLA's CPU backend runs reductions
+    over such short axes several times slower than three products and two sums."""
+    return a[..., 0] * b[..., 0] + a[..., 1] * b[..., 1] + a[..., 2] * b[..., 2]
+
+
+def _projected(colour, roots, target, scale):
+    """Variable projection at roots (n, 2): relative residual r = (t - k m) / |t| with the best
+    shading k = t.m / m.m, its derivatives along both roots (n, 3 each), k (n,) and m (n, 3)."""
+    m, dm_u, dm_v = colour(roots)
+    mm = _dot3(m, m)
+    tm = _dot3(target, m)
+    k = tm / mm
+    r = (target - k[:, None] * m) * scale[:, None]
+
+    def d_residual(dm):
+        dk = _dot3(target, dm) / mm - tm * 2.0 * _dot3(m, dm) / mm**2
+        return -(dk[:, None] * m + k[:, None] * dm) * scale[:, None]
+
+    return r, d_residual(dm_u), d_residual(dm_v), k, m
+
+
+def _gauss_newton(colour, roots, target, steps, step_tol):
+    """``steps`` Levenberg-Marquardt steps in lock-step over pixels (n, 3) from roots (n, 2).
+
+    Each step solves the 2x2 damped normal equations (Marquardt's scaling), projects the step onto
+    the box and keeps it only if the cost does not rise; the damping falls after a kept step and
+    rises after a refused one (under heavy melanin the haemoglobin direction is weak and
+    undamped Gauss-Newton overshoots). A pixel has converged when its last step moved (or, refused,
+    would have moved) the roots by at most ``step_tol``: ``last`` is that size (inf after a refused
+    larger step).
+
+    Returns the roots (n, 2), the shading, ``last``, the relative residual (each (n,)) and the
+    fitted colour (n, 3).
     """
+    scale = 1.0 / jnp.sqrt(_dot3(target, target))
 
-    melanin_blend: float
-    illuminant: str
-    melanin_max: float
-    haemoglobin_max: float
-    rgb: np.ndarray  # (size, size, 3)
-    inverse_roots: np.ndarray  # (cells, cells, 2 branches, 2)
-    chromaticity_box: tuple[float, float, float, float]
+    def evaluate(roots):
+        r, ju, jv, k, m = _projected(colour, roots, target, scale)
+        return roots, r, ju, jv, k, m, _dot3(r, r)
 
+    def step(_, state):
+        point, damping, _ = state
+        roots, r, ju, jv, _, _, cost = point
+        uu, uv, vv = _dot3(ju, ju), _dot3(ju, jv), _dot3(jv, jv)
+        gu, gv = _dot3(ju, r), _dot3(jv, r)
+        floor = 1e-12 * jnp.maximum(uu, vv) + 1e-300  # against a dead direction
+        du, dv = uu * (1.0 + damping) + floor, vv * (1.0 + damping) + floor
+        det = du * dv - uv * uv
+        delta = jnp.stack([-(dv * gu - uv * gv) / det, -(du * gv - uv * gu) / det], axis=-1)
+        delta = jnp.where(jnp.isfinite(delta), delta, 0.0)
+        trial = evaluate(jnp.clip(roots + delta, 0.0, 1.0))
+        keep = trial[-1] <= cost
+        point = jax.tree.map(lambda new, old: jnp.where(keep.reshape(-1, *[1] * (new.ndim - 1)), new, old), trial, point)
+        moved = jnp.abs(trial[0] - roots)
+        moved = jnp.maximum(moved[:, 0], moved[:, 1])
+        damping = jnp.where(keep, jnp.maximum(damping * 0.1, 1e-9), jnp.minimum(damping * 10.0, 1e9))
+        # a refused step within the tolerance is rounding at the optimum: converged too
+        return point, damping, jnp.where(keep | (moved <= step_tol), moved, jnp.inf)
 
-@functools.lru_cache(maxsize=8)
-def colour_table(
-    melanin_blend: float = 0.7,
-    illuminant: str = DEFAULT_ILLUMINANT,
-    melanin_max: float = MELANIN_MAX,
-    haemoglobin_max: float = HAEMOGLOBIN_MAX,
-    size: int = 257,
-    cells: int = 256,
-) -> ColourTable:
-    """The model's colours over the parameter box (cached per blend, illuminant and box)."""
-    from scipy.spatial import cKDTree
-
-    if not 0.0 <= melanin_blend <= 1.0:
-        raise SkinfitInputError(f"melanin_blend must be within [0, 1], got {melanin_blend}")
-    root = np.linspace(0.0, 1.0, size)
-    sm, sh = np.meshgrid(root, root, indexing="ij")
-    all_roots = np.stack([sm.ravel(), sh.ravel()], axis=-1)
-    weights = jnp.asarray(linear_srgb_weights(COLOUR_WAVELENGTHS_NM, illuminant))
-    exact = jax.jit(_exact_rgb)(jnp.asarray(all_roots), melanin_blend, melanin_max, haemoglobin_max, weights)
-    rgb = np.asarray(exact).reshape(size, size, 3)
-    chroma = _chromaticity(rgb.reshape(-1, 3))
-    low, high = chroma.min(axis=0), chroma.max(axis=0)
-    pad = 0.05 * (high - low)
-    low, high = low - pad, high + pad
-    centres = [low[k] + (np.arange(cells) + 0.5) * (high[k] - low[k]) / cells for k in range(2)]
-    grid = np.stack(np.meshgrid(*centres, indexing="ij"), axis=-1).reshape(-1, 2)
-    # The colour map folds: one chromaticity can come from two parameter sets of different
-    # brightness. Keep the nearest entry and the nearest one far from it in parameters (or the
-    # nearest again): the fit tries both and lets the shading decide.
-    _, near = cKDTree(chroma).query(grid, k=64)
-    first = all_roots[near[:, 0]]
-    far = np.linalg.norm(all_roots[near] - first[:, None], axis=-1) > 0.1
-    second = np.where(far.any(axis=1)[:, None], all_roots[near[np.arange(len(near)), np.argmax(far, axis=1)]], first)
-    roots = np.stack([first, second], axis=1).reshape(cells, cells, 2, 2)
-    box = (low[0], high[0], low[1], high[1])
-    return ColourTable(float(melanin_blend), illuminant, float(melanin_max), float(haemoglobin_max), rgb, roots, box)
-
-
-def _chromaticity(rgb):
-    total = rgb.sum(axis=-1, keepdims=True)
-    return rgb[..., :2] / np.where(total > 0, total, 1.0)
-
-
-def _bilinear(table_rgb, roots):
-    """Bilinear interpolation of the table at roots (..., 2) in [0, 1]: the colour (..., 3) and its
-    derivatives with respect to both roots, each (..., 3)."""
-    size = table_rgb.shape[0]
-    x = jnp.clip(roots, 0.0, 1.0) * (size - 1)
-    cell = jnp.clip(jnp.floor(x), 0, size - 2)
-    frac = x - cell
-    i, j = cell[..., 0].astype(jnp.int32), cell[..., 1].astype(jnp.int32)
-    a, b = frac[..., 0:1], frac[..., 1:2]
-    c00, c10, c01, c11 = table_rgb[i, j], table_rgb[i + 1, j], table_rgb[i, j + 1], table_rgb[i + 1, j + 1]
-    twist = c11 - c10 - c01 + c00
-    colour = c00 + a * (c10 - c00) + b * (c01 - c00) + a * b * twist
-    return colour, (size - 1) * (c10 - c00 + b * twist), (size - 1) * (c01 - c00 + a * twist)
-
-
-@functools.partial(jax.jit, static_argnames=("steps",))
-def _fit_chunk(table_rgb, inverse_roots, box, target, steps):
-    """Warm start from the inverse table, then lock-step Gauss-Newton, for pixels (n, 3).
-
-    Returns the roots (n, 2), the shading (n,), the size of the last step (n,), the relative
-    residual (n,) and the fitted colour (n, 3).
-    """
-    total = jnp.sum(target, axis=-1, keepdims=True)
-    chroma = target[:, :2] / total
-    cells = inverse_roots.shape[0]
-    low, high = jnp.stack([box[0], box[2]]), jnp.stack([box[1], box[3]])
-    index = jnp.clip(jnp.floor((chroma - low) / (high - low) * cells), 0, cells - 1).astype(jnp.int32)
-    roots = inverse_roots[index[:, 0], index[:, 1]]
-    scale = 1.0 / jnp.linalg.norm(target, axis=-1)
-
-    def residual_and_jacobian(roots):
-        # Variable projection: the best shading k = t.m / m.m for each colour m; residual relative
-        # to the pixel's brightness, r = (t - k m) / |t|.
-        m, dm_a, dm_b = _bilinear(table_rgb, roots)
-        mm = jnp.sum(m * m, -1)
-        tm = jnp.sum(target * m, -1)
-        k = tm / mm
-        r = (target - k[:, None] * m) * scale[:, None]
-
-        def d_residual(dm):
-            dk = jnp.sum(target * dm, -1) / mm - tm * 2.0 * jnp.sum(m * dm, -1) / mm**2
-            return -(dk[:, None] * m + k[:, None] * dm) * scale[:, None]
-
-        return r, d_residual(dm_a), d_residual(dm_b), k, m
-
-    last = jnp.zeros(target.shape[0], target.dtype)
-    for _ in range(steps):
-        r, ja, jb, _, _ = residual_and_jacobian(roots)
-        # 2x2 normal equations in closed form
-        aa, ab, bb = jnp.sum(ja * ja, -1), jnp.sum(ja * jb, -1), jnp.sum(jb * jb, -1)
-        ga, gb = jnp.sum(ja * r, -1), jnp.sum(jb * r, -1)
-        floor = 1e-12 * jnp.maximum(aa, bb) + 1e-300
-        aa, bb = aa + floor, bb + floor
-        det = aa * bb - ab * ab
-        step = jnp.stack([-(bb * ga - ab * gb) / det, -(aa * gb - ab * ga) / det], axis=-1)
-        step = jnp.where(jnp.isfinite(step), step, 0.0)
-        new = jnp.clip(roots + jnp.clip(step, -0.05, 0.05), 0.0, 1.0)  # a few table cells at most
-        last = jnp.max(jnp.abs(new - roots), axis=-1)
-        roots = new
-    r, _, _, shading, m = residual_and_jacobian(roots)
-    return roots, shading, last, jnp.linalg.norm(r, axis=-1), shading[:, None] * m
+    n = target.shape[0]
+    start = (evaluate(roots), jnp.full(n, 1e-3, target.dtype), jnp.full(n, jnp.inf, target.dtype))
+    (roots, r, _, _, shading, m, _), _, last = jax.lax.fori_loop(0, steps, step, start)
+    return roots, shading, last, jnp.sqrt(_dot3(r, r)), shading[:, None] * m
 
 
 @jax.jit
-def _rgb_of_params(columns, weights):
-    """Linear sRGB (shading 1) of (C_m, beta_m, C_h) rows."""
-    reflectance = diffuse_reflectance(SkinParams(columns[:, 0], columns[:, 1], columns[:, 2]), COLOUR_WAVELENGTHS_NM)
-    return reflectance @ weights.T
+def _spline_chunk(coefficients, roots, target, steps, step_tol):
+    return _gauss_newton(_spline_colour(coefficients), roots, target, steps, step_tol)
 
 
-def _exact_rgb(roots, melanin_blend, melanin_max, haemoglobin_max, weights):
-    """Linear sRGB (shading 1) of the exact forward model at normalised roots (n, 2)."""
-    c_m = melanin_max * jnp.clip(roots[:, 0], 0.0, 1.0) ** 2
-    c_h = haemoglobin_max * jnp.clip(roots[:, 1], 0.0, 1.0) ** 2
-    return _rgb_of_params(jnp.stack([c_m, jnp.full_like(c_m, melanin_blend), c_h], axis=-1), weights)
+@jax.jit
+def _exact_chunk(exact_model, roots, target, steps, step_tol):
+    return _gauss_newton(_exact_colour(*exact_model), roots, target, steps, step_tol)
 
 
-@functools.partial(jax.jit, static_argnames=("steps",))
-def _polish_chunk(roots, target, melanin_blend, melanin_max, haemoglobin_max, weights, steps):
-    """Gauss-Newton steps on the exact model (the table's interpolation error is ~1e-6, more than
-    haemoglobin changes the colour under heavy melanin). Returns roots, shading, last step size and
-    the fitted colour (n, 3)."""
-    scale = 1.0 / jnp.linalg.norm(target, axis=-1)
+@jax.jit
+def _delta_e_chunk(measured, fitted):
+    return (delta_e2000(linear_srgb_to_lab(measured), linear_srgb_to_lab(fitted)),)
 
-    def projected(r, t, s):
-        """(relative residual, its copy as aux) and the shading k and colour k m."""
-        m = _exact_rgb(r[None], melanin_blend, melanin_max, haemoglobin_max, weights)[0]
+
+@eqx.filter_jit
+def _levenberg_marquardt(coefficients, roots, target, max_steps, rtol, atol):
+    """optimistix Levenberg-Marquardt on the spline for the pixels Gauss-Newton left moving, in
+    unbounded coordinates z with roots = (1 - cos z) / 2 (the box without projection)."""
+    def residual(z, t):
+        r = 0.5 * (1.0 - jnp.cos(z))
+        m = spline_rgb(coefficients, r[None])[0][0]
         k = jnp.dot(t, m) / jnp.dot(m, m)
-        residual = (t - k * m) * s
-        return residual, (residual, k, k * m)
+        return (t - k * m) / jnp.linalg.norm(t)
 
-    def step(r, t, s):
-        jac, (res, _, _) = jax.jacfwd(lambda x: projected(x, t, s), has_aux=True)(r)
-        delta = solve_normal(jac.T @ jac, -(jac.T @ res))
-        delta = jnp.where(jnp.all(jnp.isfinite(delta)), jnp.clip(delta, -0.05, 0.05), 0.0)
-        new = jnp.clip(r + delta, 0.0, 1.0)
-        return new, jnp.max(jnp.abs(new - r))
+    def one(r0, t):
+        z0 = jnp.arccos(jnp.clip(1.0 - 2.0 * r0, -1.0 + 1e-12, 1.0 - 1e-12))
+        solver = optx.LevenbergMarquardt(rtol=rtol, atol=atol)
+        sol = optx.least_squares(residual, solver, z0, args=t, max_steps=max_steps, throw=False)
+        z = jnp.where(jnp.all(jnp.isfinite(sol.value)), sol.value, z0)
+        return 0.5 * (1.0 - jnp.cos(z)), sol.result == optx.RESULTS.successful
 
-    last = jnp.zeros(target.shape[0], target.dtype)
-    for _ in range(steps):
-        roots, last = jax.vmap(step)(roots, target, scale)
-    _, (_, shading, fitted) = jax.vmap(lambda r, t, s: projected(r, t, s))(roots, target, scale)
-    return roots, shading, last, fitted
+    return jax.vmap(one)(roots, target)
 
 
 def fit_pixels(
@@ -236,18 +180,31 @@ def fit_pixels(
     melanin_blend: float = 0.7,
     illuminant: str = DEFAULT_ILLUMINANT,
     mask: np.ndarray | None = None,
-    steps: int = 8,
-    polish_steps: int = 2,
-    max_polish_rounds: int = 8,
+    steps: int = 4,
+    straggler_steps: int = 8,
+    max_straggler_rounds: int = 4,
+    lm_max_steps: int = 64,
+    exact_steps: int = 0,
     step_tol: float = 1e-7,
     shading_reference: float | None = None,
     max_delta_e: float = 5.0,
     black_level: float = 1e-4,
     saturation_level: float = 0.999,
-    chunk_size: int = 16384,
+    chunk_size: int = 32768,
     progress: bool | None = None,
 ) -> dict[str, np.ndarray]:
     """Fit every pixel of a linear sRGB image (h, w, 3) (or pixels (n, 3)).
+
+    Args:
+        steps: Gauss-Newton steps for every pixel; ``straggler_steps`` more, up to
+            ``max_straggler_rounds`` times, for those still moving by more than ``step_tol`` (in
+            normalised roots), then up to ``lm_max_steps`` of Levenberg-Marquardt.
+        exact_steps: Gauss-Newton steps on the exact model after the spline fit (0: none).
+        shading_reference: the shading that decides between the fold's branches (default: the
+            median shading of the pixels with one branch).
+        max_delta_e: CIEDE2000 above which a converged pixel is ``OUT_OF_MODEL``.
+        black_level, saturation_level: linear values below / at or above which a pixel is
+            ``BLACK`` / ``SATURATED``.
 
     Returns maps of the input's leading shape: ``melanin``, ``melanin_blend``, ``haemoglobin``,
     ``shading``, ``residual_dE2000``, ``status`` (``PixelStatus``) and ``fitted_rgb`` (..., 3).
@@ -272,48 +229,30 @@ def fit_pixels(
         status[(status == 0) & ~(mask > 0)] = PixelStatus.MASKED
 
     table = colour_table(float(melanin_blend), illuminant)
-    table_rgb, inverse_roots = jnp.asarray(table.rgb), jnp.asarray(table.inverse_roots)
-    box = jnp.asarray(table.chromaticity_box)
-    exact = (float(melanin_blend), table.melanin_max, table.haemoglobin_max, jnp.asarray(linear_srgb_weights(COLOUR_WAVELENGTHS_NM, illuminant)))
-
     todo = np.flatnonzero(status == 0)
-    roots = np.zeros((len(pixels), 2))
-    shading = np.zeros(len(pixels))
-    last_step = np.zeros(len(pixels))
-    fitted = np.zeros((len(pixels), 3))
+    n = len(pixels)
+    roots, shading, last, delta_e, fitted = np.zeros((n, 2)), np.zeros(n), np.zeros(n), np.zeros(n), np.zeros((n, 3))
     if todo.size:
-        size = pad_size(todo.size, chunk_size)
-        # table pass: each branch of the fold from its own warm start; per branch the outputs of
-        # _fit_chunk for every pixel to fit (roots, shading, last step, residual, colour)
-        branches = [
-            map_batches(lambda t: _fit_chunk(table_rgb, starts, box, t, steps), (clean[todo],), size, progress, "fitting pixels")
-            for starts in jnp.moveaxis(inverse_roots, 2, 0)
-        ]
-        stacked = [np.stack(quantity) for quantity in zip(*branches)]  # each (branches, n, ...)
-        choice = _choose_branch(stacked[0], stacked[1], stacked[3], shading_reference)
-        chosen = [q[choice, np.arange(todo.size)] for q in stacked]
-        roots[todo], shading[todo], last_step[todo], fitted[todo] = chosen[0], chosen[1], chosen[2], chosen[4]
-        if polish_steps:  # exact-model polish of the chosen branch; stragglers gathered for more
-            active, rounds = todo, 0
-            while active.size and rounds <= max_polish_rounds:
-                count = polish_steps if rounds == 0 else 4
-                batch = size if rounds == 0 else min(size, 1024)
-                polish = lambda t, r: _polish_chunk(r, t, *exact, count)  # noqa: E731
-                out = map_batches(polish, (clean[active], roots[active]), batch)
-                roots[active], shading[active], last_step[active], fitted[active] = out
-                active = active[last_step[active] > step_tol]
-                rounds += 1
-    delta_e = np.zeros(len(pixels))
-    if todo.size:
-        delta_e[todo] = _delta_e2000_rgb(clean[todo], fitted[todo], illuminant)
-        converged = last_step[todo] <= step_tol
+        solved = _solve(
+            table, clean[todo], steps, straggler_steps, max_straggler_rounds, lm_max_steps, step_tol,
+            shading_reference, pad_size(todo.size, chunk_size), progress,
+        )
+        if exact_steps:
+            exact_model = (float(melanin_blend), table.melanin_max, table.haemoglobin_max, jnp.asarray(linear_srgb_weights(COLOUR_WAVELENGTHS_NM, illuminant)))
+            exact = lambda t, r: _exact_chunk(exact_model, r, t, exact_steps, step_tol)  # noqa: E731
+            polished = map_batches(exact, (clean[todo], solved[0]), pad_size(todo.size, chunk_size), progress, "exact polish")
+            solved = polished[:2] + [np.where(solved[2] <= step_tol, 0.0, np.inf)] + polished[3:]
+        roots[todo], shading[todo], last[todo], _, fitted[todo] = solved
+        (delta_e[todo],) = map_batches(_delta_e_chunk, (clean[todo], fitted[todo]), pad_size(todo.size, chunk_size))
+        converged = last[todo] <= step_tol
         status[todo[~converged]] = PixelStatus.MAX_STEPS
         status[todo[converged & (delta_e[todo] > max_delta_e)]] = PixelStatus.OUT_OF_MODEL
     fitted_any = np.isin(status, (PixelStatus.SUCCESS, PixelStatus.MAX_STEPS, PixelStatus.OUT_OF_MODEL))
+    melanin, haemoglobin = table.parameters(roots)
     maps = {
-        "melanin": table.melanin_max * roots[:, 0] ** 2,
-        "melanin_blend": np.full(len(pixels), float(melanin_blend)),
-        "haemoglobin": table.haemoglobin_max * roots[:, 1] ** 2,
+        "melanin": melanin,
+        "melanin_blend": np.full(n, float(melanin_blend)),
+        "haemoglobin": haemoglobin,
         "shading": shading,
         "residual_dE2000": delta_e,
     }
@@ -325,30 +264,56 @@ def fit_pixels(
     return {k: v.reshape(*shape, *v.shape[1:]) for k, v in maps.items()}
 
 
-def _choose_branch(roots, shading, residual, reference) -> np.ndarray:
+def _solve(table, target, steps, straggler_steps, max_rounds, lm_max_steps, step_tol, reference, size, progress):
+    """The spline fit of pixels (n, 3): warm starts, lock-step steps, the second branch where it may
+    win, stragglers. Returns roots, shading, last step, relative residual and fitted colour."""
+    coefficients = jnp.asarray(table.coefficients)
+    spline = lambda count: lambda t, r: _spline_chunk(coefficients, r, t, count, step_tol)  # noqa: E731
+    starts = table.warm_starts(target)
+    out = map_batches(spline(steps), (target, starts[:, 0]), size, progress, "fitting pixels")
+    # The fold's second branch, tried only where the inverse table has one and the first branch's
+    # shading is far from the image's typical shading (the branches' shadings differ by 2-5x).
+    two = np.any(starts[:, 0] != starts[:, 1], axis=-1)
+    if reference is None:
+        good = out[1][~two & (out[1] > 0)]
+        reference = float(np.median(good)) if good.size else 1.0
+    doubtful = np.abs(np.log(np.maximum(out[1], 1e-12) / reference)) > np.log(1.25)
+    retry = np.flatnonzero(two & (doubtful | (out[3] > 1e-2)))
+    if retry.size:
+        other = map_batches(spline(steps), (target[retry], starts[retry, 1]), pad_size(retry.size, size))
+        both = [np.stack([a[retry], b]) for a, b in zip(out, other)]  # each (2, len(retry), ...)
+        choice = _choose_branch(both[1], both[3], reference)
+        for full, pair in zip(out, both):
+            full[retry] = pair[choice, np.arange(retry.size)]
+    roots, shading, last, residual, fitted = out
+
+    moving = np.flatnonzero(last > step_tol)
+    for _ in range(max_rounds):  # gathered, so that converged pixels cost nothing more
+        if not moving.size:
+            break
+        more = map_batches(spline(straggler_steps), (target[moving], roots[moving]), pad_size(moving.size, 1024))
+        for full, part in zip(out, more):
+            full[moving] = part
+        moving = moving[last[moving] > step_tol]
+    if moving.size and lm_max_steps:
+        lm = lambda t, r: _levenberg_marquardt(coefficients, r, t, lm_max_steps, 1e-10, 1e-12)  # noqa: E731
+        lm_roots, lm_ok = map_batches(lm, (target[moving], roots[moving]), pad_size(moving.size, 256))
+        final = map_batches(spline(0), (target[moving], lm_roots), pad_size(moving.size, 256))
+        for full, part in zip(out, final):
+            full[moving] = part
+        last[moving] = np.where(lm_ok, 0.0, np.inf)
+    return out
+
+
+def _choose_branch(shading, residual, reference: float) -> np.ndarray:
     """Per pixel, the branch (0 or 1) that fits and whose shading is nearest the reference.
 
-    Branches whose relative residual is within 1 % of the best fit equally well (8-bit
-    quantisation alone leaves residuals of 1e-3); among them the shading decides. The reference defaults to the median shading of the pixels whose branches
-    agree (one exposure for the image), else 1.
+    Inputs (2, n). Branches whose relative residual is within 1 % of the best fit equally well
+    (8-bit quantisation alone leaves residuals of 1e-3); among them the shading decides.
     """
     fits = residual <= residual.min(axis=0) + 1e-2
-    if reference is None:
-        agree = np.linalg.norm(roots[0] - roots[-1], axis=-1) < 0.02
-        good = shading[0][agree & fits[0] & (shading[0] > 0)]
-        reference = float(np.median(good)) if good.size else 1.0
     distance = np.abs(np.log(np.maximum(shading, 1e-12) / reference))
     return np.argmin(np.where(fits, distance, np.inf), axis=0)
-
-
-def _delta_e2000_rgb(measured, fitted, illuminant) -> np.ndarray:
-    """CIEDE2000 between linear sRGB colours (white = 1), via colour-science."""
-    import colour
-
-    space = colour.RGB_COLOURSPACES["sRGB"]
-    white = space.whitepoint
-    lab = [colour.XYZ_to_Lab(colour.RGB_to_XYZ(c, space, apply_cctf_decoding=False), white) for c in (measured, fitted)]
-    return np.asarray(colour.delta_E(lab[0], lab[1], method="CIE 2000"), dtype=float)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -458,7 +423,7 @@ def render_maps(
     columns = np.stack([np.clip(a, 0.0, 1.0).ravel() for a in (melanin, blend, haemoglobin)], axis=-1)
     weights = jnp.asarray(linear_srgb_weights(COLOUR_WAVELENGTHS_NM, illuminant))
     (rgb,) = map_batches(
-        lambda c: (_rgb_of_params(c, weights),), (columns,), pad_size(len(columns), chunk_size)
+        lambda c: (params_rgb(c, weights),), (columns,), pad_size(len(columns), chunk_size)
     )
     return shading[..., None] * rgb.reshape(*melanin.shape, 3)
 

@@ -53,3 +53,22 @@ def test_bad_colour_input_gives_clear_errors():
         col.xyz_weights([400.0, 500.0], illuminant="moonlight")
     with pytest.raises(skinfit.SkinfitInputError, match="last axis"):
         col.spectrum_to_xyz(np.ones(4), [400.0, 500.0])
+
+
+def test_lab_of_linear_srgb_matches_colour_science():
+    rgb = np.random.default_rng(1).random((200, 3)) ** 3  # dark colours too, below the Lab knee
+    space = colour.RGB_COLOURSPACES["sRGB"]
+    expected = colour.XYZ_to_Lab(colour.RGB_to_XYZ(rgb, space, apply_cctf_decoding=False), space.whitepoint)
+    np.testing.assert_allclose(col.linear_srgb_to_lab(rgb), expected, atol=1e-10)
+
+
+def test_delta_e2000_matches_colour_science():
+    rng = np.random.default_rng(2)
+    lab_1 = rng.uniform([0, -60, -60], [100, 60, 60], (5000, 3))
+    # near pairs (the fits' residuals), far pairs, and the hue-wrap and achromatic branches
+    lab_2 = np.concatenate([lab_1[:2000] + rng.normal(0, 0.5, (2000, 3)), rng.uniform([0, -60, -60], [100, 60, 60], (3000, 3))])
+    lab_1[:50, 1:] = 0.0
+    lab_2[50:100, 1] = -np.abs(lab_2[50:100, 1])
+    lab_1[50:100, 1] = -np.abs(lab_1[50:100, 1])
+    expected = colour.delta_E(lab_1, lab_2, method="CIE 2000")
+    np.testing.assert_allclose(col.delta_e2000(lab_1, lab_2), expected, rtol=1e-9, atol=1e-9)

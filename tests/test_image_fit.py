@@ -24,15 +24,32 @@ def rendered_64():
     return maps, render_maps(*maps)
 
 
-def test_round_trip_recovers_smooth_maps(rendered_64):
-    (melanin, haemoglobin, shading), rgb = rendered_64
-    fit = fit_image(rgb, progress=False)
-    assert np.all(fit.status == PixelStatus.SUCCESS)
-    for got, true in ((fit.melanin, melanin), (fit.haemoglobin, haemoglobin), (fit.shading, shading)):
+def test_round_trip_recovers_smooth_512_maps():
+    """The issue's bar: a 512 x 512 rendering of smooth maps inverted to median <= 1e-4 and
+    99th percentile <= 1e-3 in melanin and haemoglobin."""
+    melanin, haemoglobin, shading = smooth_maps(512)
+    fit = fit_image(render_maps(melanin, haemoglobin, shading), progress=False)
+    assert np.mean(fit.status == PixelStatus.SUCCESS) > 0.999
+    for got, true in ((fit.melanin, melanin), (fit.haemoglobin, haemoglobin)):
         error = np.abs(got - true)
         assert np.median(error) <= 1e-4 and np.percentile(error, 99) <= 1e-3
+    assert np.percentile(np.abs(fit.shading - shading), 99) <= 1e-3
     assert np.all(fit.melanin_blend == 0.7)
-    assert fit.summary()["median_dE2000"] < 1e-6
+    assert fit.summary()["median_dE2000"] < 1e-4
+
+
+def test_exact_polish_removes_the_spline_error(rendered_64):
+    (melanin, haemoglobin, _), rgb = rendered_64
+    pixels = rgb[20:24].reshape(-1, 3)
+    spline = fit_pixels(pixels, progress=False)
+    polished = fit_pixels(pixels, progress=False, exact_steps=2)
+    ok = polished["status"] == PixelStatus.SUCCESS
+    assert ok.mean() > 0.99
+    true = melanin[20:24].ravel()
+    # (a pixel or two may sit on the other branch of the fold: both fit exactly)
+    assert np.percentile(np.abs(polished["melanin"] - true)[ok], 95) < 1e-12
+    assert np.percentile(np.abs(spline["melanin"] - true)[ok], 95) < 1e-6
+    assert np.median(np.abs(spline["melanin"] - true)[ok]) > 1e-13  # the spline's own error shows
 
 
 def test_pixels_that_cannot_be_fitted_get_a_status_not_nan(rendered_64):
