@@ -1,4 +1,4 @@
-"""The ``skinfit`` command line: spectra, profile tables and the demo job.
+"""The ``skinfit`` command line: spectra, profile tables, fits and the demo job.
 
 Usage errors (bad arguments, out-of-range values) print one line and exit with status 2.
 """
@@ -18,6 +18,8 @@ from .adding import ADDING_MODES
 from .layers import BLOOD_OXYGENATION, EPIDERMIS_THICKNESS_MM, SKIN_IOR
 from .params import PRESET_NAMES, SkinParams, preset
 
+#: The bundled photo (package skinfit.data, folder data/ of the repository).
+DEMO_PHOTO = "eileen_collins_face.png"
 DEFAULT_WAVELENGTHS = "400:700:10"
 DEFAULT_RADII = "0.001:20:256"
 
@@ -116,6 +118,44 @@ def _cmd_profiles(args) -> int:
 
 
 def _cmd_demo(args) -> int:
+    """The main job on the bundled photo: parameter maps, reconstruction, a blush edit, a figure."""
+    from importlib.resources import as_file, files
+
+    from .colorimetry import srgb_encode
+    from .image_fit import fit_image, render_maps
+    from .images import read_linear_rgb, write_exr, write_png
+    from .plots import plot_image_fit
+
+    out = Path(args.out)
+    out.mkdir(parents=True, exist_ok=True)
+    with as_file(files("skinfit.data") / DEMO_PHOTO) as photo:
+        print(f"skinfit demo: fitting {DEMO_PHOTO} (NASA portrait of Eileen Collins, public domain)")
+        print("  camera model: linear sRGB = white balance x shading x DJ2006 reflectance through CIE 1931 / D65;")
+        print("  melanin blend 0.7 (DJ2006), white balance fitted once for the image, melanin, haemoglobin and shading per pixel")
+        fit = fit_image(photo, white_balance=True, progress=not args.quiet)
+        encoded, _ = read_linear_rgb(photo)
+    summary = fit.summary()
+    write_exr(out / "maps.exr", {k: v.astype(float) for k, v in fit.maps().items()}, {"skinfit:source": DEMO_PHOTO, "skinfit:white_balance": " ".join(f"{g:.9g}" for g in fit.white_balance)})
+    reconstruction = np.asarray(srgb_encode(np.clip(fit.fitted_linear_rgb, 0, 1)))
+    write_png(out / "reconstructed.png", reconstruction)
+    write_png(out / "dE2000.png", _delta_e_image(fit.residual_dE2000))
+    fitted = fit.status <= 2
+    blush = render_maps(fit.melanin, 1.5 * fit.haemoglobin, fit.shading, melanin_blend=fit.melanin_blend) * np.asarray(fit.white_balance)
+    blush = np.where(fitted[..., None], blush, fit.fitted_linear_rgb)
+    write_png(out / "blush.png", np.asarray(srgb_encode(np.clip(blush, 0, 1))))
+    photo_srgb = np.asarray(srgb_encode(np.clip(encoded, 0, 1)))
+    plot_image_fit(photo_srgb, fit, np.asarray(srgb_encode(np.clip(blush, 0, 1))), out / "maps.png", "blush: haemoglobin x 1.5")
+    print(
+        f"  {summary['fitted']} of {summary['pixels']} pixels fitted ({100 * summary['fitted_fraction']:.1f} %; the rest: hair, eyes, "
+        f"lips, background - see the status map), CIEDE2000 of the fitted pixels median {summary['median_dE2000']:.2g}, "
+        f"95th percentile {summary['p95_dE2000']:.2g}"
+    )
+    print(f"  melanin blend {summary['melanin_blend']:.3g}, white balance {' '.join(f'{g:.3f}' for g in fit.white_balance)}, {summary['seconds']:.1f} s")
+    print(f"wrote {out}/: maps.exr (melanin, melanin_blend, haemoglobin, shading, residual_dE2000, status), maps.png, reconstructed.png, dE2000.png, blush.png")
+    return 0
+
+
+def _cmd_presets(args) -> int:
     from .colorimetry import spectrum_to_srgb
     from .plots import plot_profiles, plot_spectra
     from .tables import profile_table, write_table
@@ -139,7 +179,7 @@ def _cmd_demo(args) -> int:
     plot_spectra(wavelengths, spectra, srgb, out / "presets.png")
     plot_profiles(radii, wavelengths, spectral_profiles, out / "profiles.png")
 
-    print("skinfit demo: DJ2006 skin presets (diffuse reflectance, normal incidence, specular excluded)")
+    print("skinfit presets: DJ2006 skin presets (diffuse reflectance, normal incidence, specular excluded)")
     print(f"{'preset':<8} {'C_m':>6} {'beta_m':>6} {'C_h':>6}   R(450)   R(550)   R(650)   sRGB (D65)")
     for name in PRESET_NAMES:
         p = preset(name)
@@ -231,38 +271,68 @@ def _cmd_fit_spectra(args) -> int:
 
 
 def _cmd_fit_image(args) -> int:
+    out = Path(args.out)
+    out.mkdir(parents=True, exist_ok=True)
+    white_balance = _white_balance(args.white_balance)
+    options = dict(
+        melanin_blend=args.melanin_blend, fit_blend=args.fit_blend, white_balance=white_balance, input_space=args.input_space,
+        mask=args.mask, illuminant=args.illuminant, max_delta_e=args.max_delta_e, exact_steps=args.exact_steps,
+        progress=False if args.quiet else None,
+    )
+    if args.dask:
+        from .distributed import fit_images_on_cluster
+
+        return fit_images_on_cluster(args.dask, args.inputs, out, options, overwrite=args.overwrite)
+    for path in args.inputs:
+        maps_path = out / f"{Path(path).stem}_maps.exr"
+        if maps_path.exists() and not args.overwrite:  # a rerun of an interrupted batch skips finished images
+            print(f"{path}: {maps_path} exists, skipped (--overwrite to refit)")
+            continue
+        print(fit_image_to_folder(path, out, options))
+    return 0
+
+
+def fit_image_to_folder(path, out: Path, options: dict) -> str:
+    """Fit one image and write its outputs into ``out``; returns the summary line. The maps EXR is
+    written last (atomically), so that its presence marks the image done."""
     import json
 
     from .colorimetry import srgb_encode
     from .image_fit import fit_image
     from .images import write_exr, write_png
 
-    out = Path(args.out)
-    out.mkdir(parents=True, exist_ok=True)
-    for path in args.inputs:
-        stem = Path(path).stem
-        maps_path = out / f"{stem}_maps.exr"
-        if maps_path.exists() and not args.overwrite:  # a rerun of an interrupted batch skips finished images
-            print(f"{path}: {maps_path} exists, skipped (--overwrite to refit)")
-            continue
-        fit = fit_image(
-            path,
-            melanin_blend=args.melanin_blend,
-            input_space=args.input_space,
-            mask=args.mask,
-            illuminant=args.illuminant,
-        )
-        summary = fit.summary()
-        write_png(out / f"{stem}_reconstructed.png", np.asarray(srgb_encode(np.clip(fit.fitted_linear_rgb, 0, 1))))
-        write_png(out / f"{stem}_dE2000.png", _delta_e_image(fit.residual_dE2000))
-        attributes = {"skinfit:source": str(path), "skinfit:illuminant": args.illuminant, "skinfit:summary": json.dumps(summary)}
-        write_exr(maps_path, {k: v.astype(float) for k, v in fit.maps().items()}, attributes)  # last: marks the image done
-        print(
-            f"{path}: {summary['fitted']} of {summary['pixels']} pixels fitted ({100 * summary['fitted_fraction']:.1f} %), "
-            f"CIEDE2000 median {summary['median_dE2000']:.3g}, 95th percentile {summary['p95_dE2000']:.3g}, "
-            f"{summary['seconds']:.1f} s -> {maps_path}"
-        )
-    return 0
+    stem = Path(path).stem
+    maps_path = out / f"{stem}_maps.exr"
+    fit = fit_image(path, **options)
+    summary = fit.summary()
+    write_png(out / f"{stem}_reconstructed.png", np.asarray(srgb_encode(np.clip(fit.fitted_linear_rgb, 0, 1))))
+    write_png(out / f"{stem}_dE2000.png", _delta_e_image(fit.residual_dE2000))
+    attributes = {
+        "skinfit:source": str(path),
+        "skinfit:illuminant": options.get("illuminant", "D65"),
+        "skinfit:white_balance": " ".join(f"{g:.9g}" for g in fit.white_balance),
+        "skinfit:summary": json.dumps(summary),
+    }
+    write_exr(maps_path, {k: v.astype(float) for k, v in fit.maps().items()}, attributes)
+    return (
+        f"{path}: {summary['fitted']} of {summary['pixels']} pixels fitted ({100 * summary['fitted_fraction']:.1f} %), "
+        f"CIEDE2000 median {summary['median_dE2000']:.3g}, 95th percentile {summary['p95_dE2000']:.3g}, "
+        f"blend {summary['melanin_blend']:.3g}, white balance {' '.join(f'{g:.3f}' for g in fit.white_balance)}, "
+        f"{summary['seconds']:.1f} s -> {maps_path}"
+    )
+
+
+def _white_balance(text: str):
+    """--white-balance: none, auto or R,G,B gains."""
+    if text in ("none", "auto"):
+        return text == "auto"
+    try:
+        gains = tuple(float(v) for v in text.split(","))
+    except ValueError:
+        gains = ()
+    if len(gains) != 3 or not all(g > 0 for g in gains):
+        raise SkinfitInputError(f"--white-balance takes none, auto or three positive gains R,G,B; got {text!r}")
+    return gains
 
 
 def _delta_e_image(delta_e: np.ndarray) -> np.ndarray:
@@ -276,7 +346,7 @@ def _cmd_render_maps(args) -> int:
     from .image_fit import render_maps
     from .images import read_exr_channels, write_png
 
-    channels, _ = read_exr_channels(args.maps)
+    channels, attributes = read_exr_channels(args.maps)
     missing = [c for c in ("melanin", "haemoglobin", "shading", "melanin_blend") if c not in channels]
     if missing:
         raise SkinfitInputError(f"{args.maps} lacks channel(s) {', '.join(missing)}: not a skinfit maps file")
@@ -288,6 +358,8 @@ def _cmd_render_maps(args) -> int:
         melanin_blend=channels["melanin_blend"],
         illuminant=args.illuminant,
     )
+    gains = [float(g) for g in str(attributes.get("skinfit:white_balance", "1 1 1")).split()]
+    linear = linear * np.asarray(gains if len(gains) == 3 else [1.0, 1.0, 1.0])  # the camera's, as fitted
     linear[~fitted] = 0.0
     write_png(args.out, np.asarray(srgb_encode(np.clip(linear, 0, 1))))
     print(f"wrote {args.out}")
@@ -328,6 +400,12 @@ def build_parser() -> argparse.ArgumentParser:
     image.add_argument("inputs", nargs="+", metavar="INPUT", help="EXR, TIFF, PNG or JPEG files")
     image.add_argument("--out", required=True, help="output folder (maps EXR, reconstruction and CIEDE2000 PNGs per input)")
     image.add_argument("--melanin-blend", type=float, default=0.7, help="beta_m for the whole image (default 0.7)")
+    image.add_argument("--fit-blend", action="store_true", help="fit beta_m once for each image instead")
+    image.add_argument("--white-balance", default="none", help="none (albedo maps, default), auto (fit camera gains once per image) or R,G,B")
+    image.add_argument("--max-delta-e", type=float, default=1.0, help="CIEDE2000 above which a pixel is out of model (default 1)")
+    image.add_argument("--exact-steps", type=int, default=0, help="Gauss-Newton steps on the exact model after the spline fit")
+    image.add_argument("--dask", metavar="ADDRESS", default=None, help="run the images as tasks on this Dask scheduler")
+    image.add_argument("--quiet", action="store_true", help="no progress bar")
     image.add_argument("--input-space", default=None, help="srgb, linear or a colour-science RGB colourspace name")
     image.add_argument("--mask", default=None, help="mask image: pixels where it is 0 are not fitted")
     image.add_argument("--illuminant", default="D65", help="illuminant of the camera model (default D65)")
@@ -342,9 +420,14 @@ def build_parser() -> argparse.ArgumentParser:
     render.add_argument("--illuminant", default="D65")
     render.set_defaults(run=_cmd_render_maps)
 
-    demo = sub.add_parser("demo", help="the main job on bundled defaults: reflectance and profiles of the presets")
+    demo = sub.add_parser("demo", help="the main job on the bundled face photo: parameter maps, reconstruction, a blush edit")
     demo.add_argument("--out", default="skinfit-demo", help="output folder (default ./skinfit-demo)")
+    demo.add_argument("--quiet", action="store_true", help="no progress bar")
     demo.set_defaults(run=_cmd_demo)
+
+    presets = sub.add_parser("presets", help="reflectance spectra and profile tables of the DJ2006 presets")
+    presets.add_argument("--out", default="skinfit-presets", help="output folder (default ./skinfit-presets)")
+    presets.set_defaults(run=_cmd_presets)
     return parser
 
 

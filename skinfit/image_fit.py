@@ -50,7 +50,7 @@ class PixelStatus(enum.IntEnum):
 
     SUCCESS = 0  #: converged; maps hold the fit
     MAX_STEPS = 1  #: stopped at the step limit; maps hold the best iterate
-    OUT_OF_MODEL = 2  #: converged, but CIEDE2000 to the pixel exceeds ``max_delta_e`` (not skin?)
+    OUT_OF_MODEL = 2  #: the best fit misses the pixel by more than ``max_delta_e`` CIEDE2000 (not skin?)
     BAD_INPUT = 3  #: NaN, Inf or negative values
     MASKED = 4  #: outside the mask
     BLACK = 5  #: too dark to carry colour
@@ -95,6 +95,26 @@ def _projected(colour, roots, target, scale):
     return r, d_residual(dm_u), d_residual(dm_v), k, m
 
 
+#: Lower bound of the roots in the solver: C = max * root^2 has zero slope at root 0, which would
+#: trap a pixel there (the cost is even in the root); 1e-3 means C_m >= 5e-7, C_h >= 1.5e-7.
+_ROOT_FLOOR = 1e-3
+
+
+def _stationary(roots, r, ju, jv, tol=1e-4):
+    """First-order optimality on the box: each free column of the Jacobian orthogonal to the
+    residual to within ``tol`` (cosine); a column at a bound that the gradient pushes out of the
+    box counts as orthogonal. At cosine c the step still to go is ~ c |r| / |J|: 1e-4 leaves
+    ~1e-6 in the roots for the 1 % residuals of colours just outside the gamut."""
+    norm_r = jnp.sqrt(_dot3(r, r))
+
+    def free_cosine(j, x):
+        g = _dot3(j, r)  # the cost's half-gradient along this root
+        blocked = ((x <= _ROOT_FLOOR) & (g > 0.0)) | ((x >= 1.0) & (g < 0.0))
+        return jnp.where(blocked, 0.0, jnp.abs(g) / (jnp.sqrt(_dot3(j, j)) * norm_r + 1e-300))
+
+    return jnp.maximum(free_cosine(ju, roots[:, 0]), free_cosine(jv, roots[:, 1])) <= tol
+
+
 def _gauss_newton(colour, roots, target, steps, step_tol):
     """``steps`` Levenberg-Marquardt steps in lock-step over pixels (n, 3) from roots (n, 2).
 
@@ -122,19 +142,30 @@ def _gauss_newton(colour, roots, target, steps, step_tol):
         floor = 1e-12 * jnp.maximum(uu, vv) + 1e-300  # against a dead direction
         du, dv = uu * (1.0 + damping) + floor, vv * (1.0 + damping) + floor
         det = du * dv - uv * uv
-        delta = jnp.stack([-(dv * gu - uv * gv) / det, -(du * gv - uv * gu) / det], axis=-1)
+        step_u, step_v = -(dv * gu - uv * gv) / det, -(du * gv - uv * gu) / det
+        # a root on a bound that its step pushes out of the box stays there; the other then
+        # takes its own one-variable step (clipping the joint step instead stalls on the bound)
+        out_u = ((roots[:, 0] <= _ROOT_FLOOR) & (step_u < 0.0)) | ((roots[:, 0] >= 1.0) & (step_u > 0.0))
+        out_v = ((roots[:, 1] <= _ROOT_FLOOR) & (step_v < 0.0)) | ((roots[:, 1] >= 1.0) & (step_v > 0.0))
+        step_u, step_v = jnp.where(out_v, -gu / du, step_u), jnp.where(out_u, -gv / dv, step_v)
+        step_u, step_v = jnp.where(out_u, 0.0, step_u), jnp.where(out_v, 0.0, step_v)
+        delta = jnp.stack([step_u, step_v], axis=-1)
         delta = jnp.where(jnp.isfinite(delta), delta, 0.0)
-        trial = evaluate(jnp.clip(roots + delta, 0.0, 1.0))
+        trial = evaluate(jnp.clip(roots + delta, _ROOT_FLOOR, 1.0))
         keep = trial[-1] <= cost
         point = jax.tree.map(lambda new, old: jnp.where(keep.reshape(-1, *[1] * (new.ndim - 1)), new, old), trial, point)
         moved = jnp.abs(trial[0] - roots)
         moved = jnp.maximum(moved[:, 0], moved[:, 1])
         damping = jnp.where(keep, jnp.maximum(damping * 0.1, 1e-9), jnp.minimum(damping * 10.0, 1e9))
-        # a refused step within the tolerance is rounding at the optimum: converged too
-        return point, damping, jnp.where(keep | (moved <= step_tol), moved, jnp.inf)
+        # Converged: a step within the tolerance (kept, or refused: rounding at the optimum), or
+        # the current point has the residual orthogonal to the Jacobian's free columns
+        # (first-order optimal with a non-zero residual: a colour outside the model's gamut, where
+        # the steps shrink only linearly)
+        stationary = _stationary(*point[:4])
+        return point, damping, jnp.where(stationary, 0.0, jnp.where(keep | (moved <= step_tol), moved, jnp.inf))
 
     n = target.shape[0]
-    start = (evaluate(roots), jnp.full(n, 1e-3, target.dtype), jnp.full(n, jnp.inf, target.dtype))
+    start = (evaluate(jnp.clip(roots, _ROOT_FLOOR, 1.0)), jnp.full(n, 1e-3, target.dtype), jnp.full(n, jnp.inf, target.dtype))
     (roots, r, _, _, shading, m, _), _, last = jax.lax.fori_loop(0, steps, step, start)
     return roots, shading, last, jnp.sqrt(_dot3(r, r)), shading[:, None] * m
 
@@ -156,20 +187,20 @@ def _delta_e_chunk(measured, fitted):
 
 @eqx.filter_jit
 def _levenberg_marquardt(coefficients, roots, target, max_steps, rtol, atol):
-    """optimistix Levenberg-Marquardt on the spline for the pixels Gauss-Newton left moving, in
-    unbounded coordinates z with roots = (1 - cos z) / 2 (the box without projection)."""
+    """optimistix Levenberg-Marquardt on the spline for the pixels the lock-step solver left
+    moving; the box by clipping inside the residual (a pixel that ends outside sits on the bound
+    its gradient pushes it to)."""
+
     def residual(z, t):
-        r = 0.5 * (1.0 - jnp.cos(z))
-        m = spline_rgb(coefficients, r[None])[0][0]
+        m = spline_rgb(coefficients, jnp.clip(z, 0.0, 1.0)[None])[0][0]
         k = jnp.dot(t, m) / jnp.dot(m, m)
         return (t - k * m) / jnp.linalg.norm(t)
 
     def one(r0, t):
-        z0 = jnp.arccos(jnp.clip(1.0 - 2.0 * r0, -1.0 + 1e-12, 1.0 - 1e-12))
         solver = optx.LevenbergMarquardt(rtol=rtol, atol=atol)
-        sol = optx.least_squares(residual, solver, z0, args=t, max_steps=max_steps, throw=False)
-        z = jnp.where(jnp.all(jnp.isfinite(sol.value)), sol.value, z0)
-        return 0.5 * (1.0 - jnp.cos(z)), sol.result == optx.RESULTS.successful
+        sol = optx.least_squares(residual, solver, r0, args=t, max_steps=max_steps, throw=False)
+        z = jnp.where(jnp.all(jnp.isfinite(sol.value)), sol.value, r0)
+        return jnp.clip(z, 0.0, 1.0), sol.result == optx.RESULTS.successful
 
     return jax.vmap(one)(roots, target)
 
@@ -187,7 +218,7 @@ def fit_pixels(
     exact_steps: int = 0,
     step_tol: float = 1e-7,
     shading_reference: float | None = None,
-    max_delta_e: float = 5.0,
+    max_delta_e: float = 1.0,
     black_level: float = 1e-4,
     saturation_level: float = 0.999,
     chunk_size: int = 32768,
@@ -202,7 +233,8 @@ def fit_pixels(
         exact_steps: Gauss-Newton steps on the exact model after the spline fit (0: none).
         shading_reference: the shading that decides between the fold's branches (default: the
             median shading of the pixels with one branch).
-        max_delta_e: CIEDE2000 above which a converged pixel is ``OUT_OF_MODEL``.
+        max_delta_e: CIEDE2000 above which a pixel is ``OUT_OF_MODEL`` (default 1, about a
+            just-noticeable difference: the skin model cannot reproduce the pixel).
         black_level, saturation_level: linear values below / at or above which a pixel is
             ``BLACK`` / ``SATURATED``.
 
@@ -244,9 +276,10 @@ def fit_pixels(
             solved = polished[:2] + [np.where(solved[2] <= step_tol, 0.0, np.inf)] + polished[3:]
         roots[todo], shading[todo], last[todo], _, fitted[todo] = solved
         (delta_e[todo],) = map_batches(_delta_e_chunk, (clean[todo], fitted[todo]), pad_size(todo.size, chunk_size))
-        converged = last[todo] <= step_tol
-        status[todo[~converged]] = PixelStatus.MAX_STEPS
-        status[todo[converged & (delta_e[todo] > max_delta_e)]] = PixelStatus.OUT_OF_MODEL
+        status[todo[last[todo] > step_tol]] = PixelStatus.MAX_STEPS
+        # a colour the model misses by more than max_delta_e is not skin as the camera model sees
+        # it, whether or not the solver settled (colours far outside the gamut settle slowly)
+        status[todo[delta_e[todo] > max_delta_e]] = PixelStatus.OUT_OF_MODEL
     fitted_any = np.isin(status, (PixelStatus.SUCCESS, PixelStatus.MAX_STEPS, PixelStatus.OUT_OF_MODEL))
     melanin, haemoglobin = table.parameters(roots)
     maps = {
@@ -321,6 +354,8 @@ class ImageFit:
     """Parameter maps of one image (each (h, w)), its reconstruction and a summary.
 
     ``status`` holds ``PixelStatus`` codes; pixels that were not fitted hold 0 in every map.
+    ``white_balance`` are the camera gains (r, g, b) the fit divided out (1 unless fitted):
+    ``fitted_linear_rgb`` includes them.
     """
 
     melanin: np.ndarray
@@ -331,6 +366,7 @@ class ImageFit:
     status: np.ndarray
     fitted_linear_rgb: np.ndarray  # (h, w, 3)
     seconds: float
+    white_balance: tuple[float, float, float] = (1.0, 1.0, 1.0)
 
     MAP_NAMES = ("melanin", "melanin_blend", "haemoglobin", "shading", "residual_dE2000", "status")
 
@@ -338,7 +374,8 @@ class ImageFit:
         return {name: getattr(self, name) for name in self.MAP_NAMES}
 
     def summary(self) -> dict[str, float]:
-        """Pixels, fitted fraction, median and 95th-percentile CIEDE2000 of the fitted pixels, time."""
+        """Pixels, fitted fraction, median and 95th-percentile CIEDE2000 of the fitted pixels,
+        the blend and white balance, time."""
         fitted = self.status == PixelStatus.SUCCESS
         delta_e = self.residual_dE2000[fitted]
         return {
@@ -347,6 +384,8 @@ class ImageFit:
             "fitted_fraction": float(fitted.mean()),
             "median_dE2000": float(np.median(delta_e)) if delta_e.size else float("nan"),
             "p95_dE2000": float(np.percentile(delta_e, 95)) if delta_e.size else float("nan"),
+            "melanin_blend": float(self.melanin_blend.flat[0]) if self.melanin_blend.size else float("nan"),
+            "white_balance": list(self.white_balance),
             "seconds": self.seconds,
         }
 
@@ -355,6 +394,8 @@ def fit_image(
     image,
     *,
     melanin_blend: float = 0.7,
+    fit_blend: bool = False,
+    white_balance: bool | tuple[float, float, float] = False,
     input_space: str | None = None,
     mask=None,
     use_alpha: bool = True,
@@ -368,6 +409,9 @@ def fit_image(
         image: a path (read through OpenImageIO, see ``skinfit.images``) or a linear sRGB array
             (h, w, 3).
         melanin_blend: beta_m for the whole image (three channels cannot carry it per pixel).
+        fit_blend: fit beta_m once for the whole image instead (``skinfit.calibration``).
+        white_balance: ``True`` fits per-channel camera gains once for the image (for photos
+            under unknown light); a tuple (r, g, b) gives them; ``False``: none (albedo maps).
         input_space: encoding of a file (``None``: from its type and metadata).
         mask: (h, w) array or image path; pixels where it is 0 are not fitted (status MASKED).
         use_alpha: treat the file's alpha channel as a mask.
@@ -395,9 +439,33 @@ def fit_image(
             raise SkinfitInputError(f"mask has shape {mask.shape}, the image {rgb.shape[:2]}")
     if use_alpha and alpha is not None:
         mask = alpha if mask is None else np.minimum(mask, alpha)
-    maps = fit_pixels(rgb, melanin_blend=melanin_blend, illuminant=illuminant, mask=mask, progress=progress, **options)
-    fitted = maps.pop("fitted_rgb")
-    return ImageFit(**maps, fitted_linear_rgb=fitted, seconds=time.perf_counter() - start)
+    gains = np.ones(3)
+    if fit_blend or white_balance is True:
+        from .calibration import calibrate
+
+        fittable = _fittable(rgb, mask, options.get("black_level", 1e-4), options.get("saturation_level", 0.999))
+        if not fittable.any():
+            raise SkinfitInputError("no pixel of the image can be fitted (all black, saturated, masked or invalid)")
+        calibration = calibrate(
+            rgb[fittable], melanin_blend=None if fit_blend else melanin_blend, white_balance=white_balance is True, illuminant=illuminant
+        )
+        melanin_blend, gains = calibration.melanin_blend, np.asarray(calibration.white_balance)
+    elif white_balance is not False:
+        gains = np.asarray(white_balance, dtype=float)
+        if gains.shape != (3,) or not np.all(gains > 0):
+            raise SkinfitInputError(f"white_balance must be True, False or three positive gains, got {white_balance}")
+    maps = fit_pixels(rgb / gains, melanin_blend=melanin_blend, illuminant=illuminant, mask=mask, progress=progress, **options)
+    fitted = maps.pop("fitted_rgb") * gains
+    return ImageFit(**maps, fitted_linear_rgb=fitted, seconds=time.perf_counter() - start, white_balance=tuple(float(g) for g in gains))
+
+
+def _fittable(rgb, mask, black_level, saturation_level) -> np.ndarray:
+    """Pixels (h, w) that ``fit_pixels`` would try: finite, non-negative, neither black nor
+    saturated, inside the mask."""
+    with np.errstate(invalid="ignore"):
+        peak = rgb.max(axis=-1)
+        ok = np.all(np.isfinite(rgb), axis=-1) & np.all(rgb >= 0, axis=-1) & (peak >= black_level) & (peak < saturation_level)
+    return ok if mask is None else ok & (np.asarray(mask) > 0)
 
 
 def _is_path(value) -> bool:

@@ -80,3 +80,38 @@ def plot_fits(wavelengths_nm, measured, fitted, names, rms, path: str | Path, pa
     fig.tight_layout()
     fig.savefig(path, dpi=110)
     plt.close(fig)
+
+
+def plot_image_fit(photo_srgb, fit, edited_srgb, path: str | Path, edit_label: str = "edit"):
+    """An image fit at a glance: the photo, its reconstruction, the melanin, haemoglobin and
+    shading maps, the CIEDE2000 and status maps, and an edit re-rendered. ``fit`` is an
+    ``ImageFit``; the sRGB images are encoded (h, w, 3) in [0, 1]."""
+    from .image_fit import PixelStatus
+
+    plt = _pyplot()
+    from .colorimetry import srgb_encode
+
+    fitted = fit.status <= PixelStatus.OUT_OF_MODEL
+    masked = lambda a: np.ma.masked_where(~fitted, a)  # noqa: E731
+    panels = [
+        ("photo", photo_srgb, {}),
+        ("reconstruction", np.clip(np.asarray(srgb_encode(np.clip(fit.fitted_linear_rgb, 0, 1))), 0, 1), {}),
+        ("melanin C_m", masked(fit.melanin), {"cmap": "copper_r"}),
+        ("haemoglobin C_h", masked(fit.haemoglobin), {"cmap": "Reds"}),
+        ("shading", masked(fit.shading), {"cmap": "gray"}),
+        ("CIEDE2000", masked(fit.residual_dE2000), {"cmap": "magma", "vmin": 0, "vmax": 2}),
+        ("status", fit.status, {"cmap": "tab10", "vmin": -0.5, "vmax": 9.5, "interpolation": "nearest"}),
+        (edit_label, edited_srgb, {}),
+    ]
+    fig, axes = plt.subplots(2, 4, figsize=(13, 7.2))
+    for ax, (title, image, style) in zip(axes.ravel(), panels):
+        shown = ax.imshow(image, **style)
+        if image.ndim == 2 and title != "status":
+            fig.colorbar(shown, ax=ax, fraction=0.046, pad=0.03)
+        ax.set_title(title)
+        ax.axis("off")
+    names = ", ".join(f"{int(s)} {s.name.lower()}" for s in PixelStatus if np.any(fit.status == s))
+    axes[1][2].set_title(f"status\n{names}", fontsize=8)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)

@@ -56,17 +56,32 @@ def test_profiles_command_writes_each_format(tmp_path):
 
 
 def test_every_command_has_help():
-    for command in ("spectrum", "profiles", "fit-spectra", "demo"):
+    for command in ("spectrum", "profiles", "fit-spectra", "fit-image", "render-maps", "demo", "presets"):
         result = run_cli(command, "--help")
         assert result.returncode == 0 and "usage" in result.stdout
 
 
-def test_demo_writes_tables_and_plots(tmp_path, capsys):
-    assert main(["demo", "--out", str(tmp_path / "demo")]) == 0
+def test_presets_writes_tables_and_plots(tmp_path, capsys):
+    assert main(["presets", "--out", str(tmp_path / "presets")]) == 0
     out = capsys.readouterr().out
     assert "light" in out and "dark" in out
     for name in ("reflectance.csv", "profiles_light.csv", "presets.png", "profiles.png"):
+        assert (tmp_path / "presets" / name).stat().st_size > 0
+
+
+def test_demo_fits_the_bundled_photo(tmp_path, capsys):
+    from skinfit.images import read_exr_channels
+
+    assert main(["demo", "--out", str(tmp_path / "demo"), "--quiet"]) == 0
+    out = capsys.readouterr().out
+    assert "pixels fitted" in out
+    for name in ("maps.exr", "maps.png", "reconstructed.png", "dE2000.png", "blush.png"):
         assert (tmp_path / "demo" / name).stat().st_size > 0
+    channels, attributes = read_exr_channels(tmp_path / "demo" / "maps.exr")
+    fitted = channels["status"] == 0
+    assert fitted.mean() > 0.2  # the face; hair, eyes, suit and background are out of model
+    assert np.all(np.isfinite(channels["melanin"])) and np.percentile(channels["residual_dE2000"][fitted], 95) <= 1.0
+    assert len(attributes["skinfit:white_balance"].split()) == 3
 
 
 def test_fit_spectra_csv_round_trip(tmp_path, capsys):

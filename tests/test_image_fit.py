@@ -107,3 +107,44 @@ def test_cli_bad_input_is_one_line_and_exit_2(tmp_path, capsys):
     write_exr(not_maps, {"R": np.zeros((2, 2)), "G": np.zeros((2, 2)), "B": np.zeros((2, 2))})
     assert cli.main(["render-maps", str(not_maps), "--out", str(tmp_path / "y.png")]) == 2
     assert "not a skinfit maps file" in capsys.readouterr().err
+
+
+def test_white_balance_brings_an_off_balance_image_into_the_gamut():
+    """With shading free per pixel, gains (and the blend) are seen only through the gamut's edge:
+    the calibration picks those that let the model reach the most pixels (see skinfit.calibration)."""
+    from skinfit.calibration import calibrate
+
+    melanin, haemoglobin, shading = smooth_maps(24)
+    rgb = render_maps(melanin, haemoglobin, shading) * np.array([0.8, 1.0, 1.3])  # far off balance
+    plain = fit_image(rgb, progress=False)
+    calibration = calibrate(rgb.reshape(-1, 3), melanin_blend=0.7)
+    balanced = fit_image(rgb, white_balance=calibration.white_balance, progress=False)
+    assert np.mean(plain.status == PixelStatus.SUCCESS) < 0.8
+    assert np.mean(balanced.status == PixelStatus.SUCCESS) > 0.95
+    assert calibration.score < 1e-3
+    ok = balanced.status == PixelStatus.SUCCESS
+    np.testing.assert_allclose(balanced.fitted_linear_rgb[ok], rgb[ok], atol=1e-6)  # the reconstruction includes the gains
+
+
+def test_images_run_as_tasks_on_a_dask_cluster(tmp_path, rendered_64, capsys):
+    distributed = pytest.importorskip("distributed")  # in the test extra; optional for users
+    _, rgb = rendered_64
+    paths = []
+    for i in range(2):
+        paths.append(tmp_path / f"face{i}.exr")
+        write_exr(paths[-1], {"R": rgb[8 * i : 8 * i + 8, :16, 0], "G": rgb[8 * i : 8 * i + 8, :16, 1], "B": rgb[8 * i : 8 * i + 8, :16, 2]})
+    with distributed.LocalCluster(n_workers=1, threads_per_worker=1, processes=False, protocol="tcp://", host="127.0.0.1", dashboard_address=None) as cluster:
+        assert cli.main(["fit-image", *map(str, paths), "--out", str(tmp_path / "out"), "--dask", cluster.scheduler_address]) == 0
+    out = capsys.readouterr().out
+    assert out.count("pixels fitted") == 2
+    for i in range(2):
+        channels, _ = read_exr_channels(tmp_path / "out" / f"face{i}_maps.exr")
+        assert np.mean(channels["status"] == PixelStatus.SUCCESS) > 0.95
+
+
+def test_cli_dask_needs_a_reachable_scheduler(tmp_path, capsys):
+    pytest.importorskip("distributed")
+    photo = tmp_path / "x.exr"
+    write_exr(photo, {"R": np.full((2, 2), 0.3), "G": np.full((2, 2), 0.2), "B": np.full((2, 2), 0.15)})
+    assert cli.main(["fit-image", str(photo), "--out", str(tmp_path / "o"), "--dask", "tcp://127.0.0.1:9"]) == 2
+    assert "cannot reach the Dask scheduler" in capsys.readouterr().err

@@ -1,0 +1,1 @@
+"""Sample inputs shipped with the package (the demo photo); see README.md here."""
