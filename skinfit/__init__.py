@@ -27,6 +27,8 @@ from .colorimetry import (  # noqa: E402
 )
 from .spectral_fit import FitStatus, SolverSettings, SpectralFit, fit_spectra  # noqa: E402
 from .hankel import HankelQuadrature  # noqa: E402
+from .calibration import ImageCalibration, calibrate  # noqa: E402
+from .colour_table import ColourTable, colour_table  # noqa: E402
 from .image_fit import ImageFit, PixelStatus, fit_image, fit_pixels, render_maps  # noqa: E402
 from .images import read_linear_rgb  # noqa: E402
 from .layers import Layer, skin_layers  # noqa: E402
@@ -44,8 +46,12 @@ __all__ = [
     "captured_reflectance",
     "fit_spectra",
     "HankelQuadrature",
+    "ColourTable",
+    "ImageCalibration",
     "ImageFit",
     "PixelStatus",
+    "calibrate",
+    "colour_table",
     "fit_image",
     "fit_pixels",
     "read_linear_rgb",

@@ -297,7 +297,6 @@ def fit_image_to_folder(path, out: Path, options: dict) -> str:
     written last (atomically), so that its presence marks the image done."""
     import json
 
-    from .colorimetry import srgb_encode
     from .image_fit import fit_image
     from .images import write_exr, write_png
 
@@ -305,7 +304,7 @@ def fit_image_to_folder(path, out: Path, options: dict) -> str:
     maps_path = out / f"{stem}_maps.exr"
     fit = fit_image(path, **options)
     summary = fit.summary()
-    write_png(out / f"{stem}_reconstructed.png", np.asarray(srgb_encode(np.clip(fit.fitted_linear_rgb, 0, 1))))
+    write_png(out / f"{stem}_reconstructed.png", _encoded_srgb(fit.fitted_linear_rgb))
     write_png(out / f"{stem}_dE2000.png", _delta_e_image(fit.residual_dE2000))
     attributes = {
         "skinfit:source": str(path),
@@ -313,13 +312,23 @@ def fit_image_to_folder(path, out: Path, options: dict) -> str:
         "skinfit:white_balance": " ".join(f"{g:.9g}" for g in fit.white_balance),
         "skinfit:summary": json.dumps(summary),
     }
-    write_exr(maps_path, {k: v.astype(float) for k, v in fit.maps().items()}, attributes)
+    write_exr(maps_path, fit.maps(), attributes)
     return (
         f"{path}: {summary['fitted']} of {summary['pixels']} pixels fitted ({100 * summary['fitted_fraction']:.1f} %), "
         f"CIEDE2000 median {summary['median_dE2000']:.3g}, 95th percentile {summary['p95_dE2000']:.3g}, "
         f"blend {summary['melanin_blend']:.3g}, white balance {' '.join(f'{g:.3f}' for g in fit.white_balance)}, "
         f"{summary['seconds']:.1f} s -> {maps_path}"
     )
+
+
+def _encoded_srgb(linear: np.ndarray, rows: int = 256) -> np.ndarray:
+    """sRGB-encoded float32 copy of a linear image, in bands of rows (NumPy: a 4096 x 4096 image
+    through JAX would hold several float64 copies at once)."""
+    encoded = np.empty(linear.shape, np.float32)
+    for top in range(0, linear.shape[0], rows):
+        band = np.clip(linear[top : top + rows], 0.0, 1.0).astype(np.float32)
+        encoded[top : top + rows] = np.where(band <= 0.0031308, 12.92 * band, 1.055 * np.power(band, 1 / 2.4) - 0.055)
+    return encoded
 
 
 def _white_balance(text: str):
@@ -337,8 +346,8 @@ def _white_balance(text: str):
 
 def _delta_e_image(delta_e: np.ndarray) -> np.ndarray:
     """CIEDE2000 map as a colour image: black 0 -> yellow 2 (clipped)."""
-    t = np.clip(delta_e / 2.0, 0.0, 1.0)[..., None]
-    return t * np.array([1.0, 0.85, 0.1])
+    t = np.clip(delta_e / 2.0, 0.0, 1.0).astype(np.float32)[..., None]
+    return t * np.array([1.0, 0.85, 0.1], np.float32)
 
 
 def _cmd_render_maps(args) -> int:

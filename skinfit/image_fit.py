@@ -353,7 +353,8 @@ def _choose_branch(shading, residual, reference: float) -> np.ndarray:
 class ImageFit:
     """Parameter maps of one image (each (h, w)), its reconstruction and a summary.
 
-    ``status`` holds ``PixelStatus`` codes; pixels that were not fitted hold 0 in every map.
+    ``status`` holds ``PixelStatus`` codes; pixels that were not fitted hold 0 in every map. Maps
+    are float32 (relative precision 6e-8, as the EXR stores them).
     ``white_balance`` are the camera gains (r, g, b) the fit divided out (1 unless fitted):
     ``fitted_linear_rgb`` includes them.
     """
@@ -384,7 +385,7 @@ class ImageFit:
             "fitted_fraction": float(fitted.mean()),
             "median_dE2000": float(np.median(delta_e)) if delta_e.size else float("nan"),
             "p95_dE2000": float(np.percentile(delta_e, 95)) if delta_e.size else float("nan"),
-            "melanin_blend": float(self.melanin_blend.flat[0]) if self.melanin_blend.size else float("nan"),
+            "melanin_blend": round(float(self.melanin_blend.flat[0]), 6) if self.melanin_blend.size else float("nan"),
             "white_balance": list(self.white_balance),
             "seconds": self.seconds,
         }
@@ -454,9 +455,39 @@ def fit_image(
         gains = np.asarray(white_balance, dtype=float)
         if gains.shape != (3,) or not np.all(gains > 0):
             raise SkinfitInputError(f"white_balance must be True, False or three positive gains, got {white_balance}")
-    maps = fit_pixels(rgb / gains, melanin_blend=melanin_blend, illuminant=illuminant, mask=mask, progress=progress, **options)
-    fitted = maps.pop("fitted_rgb") * gains
+    maps = _fit_in_bands(rgb, gains, mask, dict(melanin_blend=melanin_blend, illuminant=illuminant, **options), progress)
+    fitted = maps.pop("fitted_rgb")
     return ImageFit(**maps, fitted_linear_rgb=fitted, seconds=time.perf_counter() - start, white_balance=tuple(float(g) for g in gains))
+
+
+def _fit_in_bands(rgb, gains, mask, options, progress, band_pixels: int = 1 << 20):
+    """``fit_pixels`` over bands of rows of at most ``band_pixels`` pixels, into preallocated
+    float32 maps (as the EXR stores them; ``fit_pixels`` returns float64): the working memory of a
+    4096 x 4096 image stays that of one band. The shading reference that picks the fold's branch
+    comes from the first band."""
+    h, w, _ = rgb.shape
+    rows = max(1, band_pixels // max(w, 1))
+    maps = None
+    bands = range(0, h, rows)
+    if progress is None:
+        progress = len(bands) > 1
+    if progress and len(bands) > 1:
+        from tqdm.auto import tqdm
+
+        bands = tqdm(bands, desc="fitting bands", unit="band")
+    for top in bands:
+        part = fit_pixels(
+            rgb[top : top + rows] / gains, mask=None if mask is None else mask[top : top + rows], progress=False, **options
+        )
+        part["fitted_rgb"] = part["fitted_rgb"] * gains
+        if maps is None:
+            maps = {k: np.zeros((h, w, *v.shape[2:]), np.float32 if v.dtype == np.float64 else v.dtype) for k, v in part.items()}
+            if options.get("shading_reference") is None and len(range(0, h, rows)) > 1:
+                fitted = part["status"] == PixelStatus.SUCCESS
+                options = dict(options, shading_reference=float(np.median(part["shading"][fitted])) if fitted.any() else None)
+        for k, v in part.items():
+            maps[k][top : top + rows] = v
+    return maps
 
 
 def _fittable(rgb, mask, black_level, saturation_level) -> np.ndarray:
