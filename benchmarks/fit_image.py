@@ -42,6 +42,7 @@ from skinfit.image_fit import fit_pixels, render_maps
 
 
 def smooth_maps(n):
+    """Smooth (n, n) maps over the issue's box: melanin 0.002-0.4, haemoglobin 0.002-0.08, shading 0.5-1."""
     y, x = np.mgrid[0:n, 0:n] / (n - 1)
     melanin = 0.002 + 0.398 * (0.5 + 0.5 * np.sin(3 * x + 1) * np.cos(2 * y))
     haemoglobin = 0.002 + 0.078 * (0.5 + 0.5 * np.cos(4 * x * y + 0.5))

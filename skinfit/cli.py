@@ -121,30 +121,23 @@ def _cmd_demo(args) -> int:
     """The main job on the bundled photo: parameter maps, reconstruction, a blush edit, a figure."""
     from importlib.resources import as_file, files
 
-    from .colorimetry import srgb_encode
-    from .image_fit import fit_image, render_maps
-    from .images import read_linear_rgb, write_exr, write_png
+    from .image_fit import fit_image
+    from .images import read_linear_rgb, write_png
     from .plots import plot_image_fit
 
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
+    print(f"skinfit demo: fitting {DEMO_PHOTO} (NASA portrait of Eileen Collins, public domain)")
+    print("  camera model: linear sRGB = white balance x shading x DJ2006 reflectance through CIE 1931 / D65;")
+    print("  melanin blend 0.7 (DJ2006), white balance fitted once for the image, melanin, haemoglobin and shading per pixel")
     with as_file(files("skinfit.data") / DEMO_PHOTO) as photo:
-        print(f"skinfit demo: fitting {DEMO_PHOTO} (NASA portrait of Eileen Collins, public domain)")
-        print("  camera model: linear sRGB = white balance x shading x DJ2006 reflectance through CIE 1931 / D65;")
-        print("  melanin blend 0.7 (DJ2006), white balance fitted once for the image, melanin, haemoglobin and shading per pixel")
-        fit = fit_image(photo, white_balance=True, progress=not args.quiet)
-        encoded, _ = read_linear_rgb(photo)
+        linear, _ = read_linear_rgb(photo)
+    fit = fit_image(linear, white_balance=True, progress=not args.quiet)
     summary = fit.summary()
-    write_exr(out / "maps.exr", {k: v.astype(float) for k, v in fit.maps().items()}, {"skinfit:source": DEMO_PHOTO, "skinfit:white_balance": " ".join(f"{g:.9g}" for g in fit.white_balance)})
-    reconstruction = np.asarray(srgb_encode(np.clip(fit.fitted_linear_rgb, 0, 1)))
-    write_png(out / "reconstructed.png", reconstruction)
-    write_png(out / "dE2000.png", _delta_e_image(fit.residual_dE2000))
-    fitted = fit.status <= 2
-    blush = render_maps(fit.melanin, 1.5 * fit.haemoglobin, fit.shading, melanin_blend=fit.melanin_blend) * np.asarray(fit.white_balance)
-    blush = np.where(fitted[..., None], blush, fit.fitted_linear_rgb)
-    write_png(out / "blush.png", np.asarray(srgb_encode(np.clip(blush, 0, 1))))
-    photo_srgb = np.asarray(srgb_encode(np.clip(encoded, 0, 1)))
-    plot_image_fit(photo_srgb, fit, np.asarray(srgb_encode(np.clip(blush, 0, 1))), out / "maps.png", "blush: haemoglobin x 1.5")
+    _write_fit(fit, out, "", DEMO_PHOTO, "D65")
+    blush = _encoded_srgb(fit.render(scale_haemoglobin=1.5))
+    write_png(out / "blush.png", blush)
+    plot_image_fit(_encoded_srgb(linear), fit, blush, out / "maps.png", "blush: haemoglobin x 1.5")
     print(
         f"  {summary['fitted']} of {summary['pixels']} pixels fitted ({100 * summary['fitted_fraction']:.1f} %; the rest: hair, eyes, "
         f"lips, background - see the status map), CIEDE2000 of the fitted pixels median {summary['median_dE2000']:.2g}, "
@@ -293,32 +286,39 @@ def _cmd_fit_image(args) -> int:
 
 
 def fit_image_to_folder(path, out: Path, options: dict) -> str:
-    """Fit one image and write its outputs into ``out``; returns the summary line. The maps EXR is
-    written last (atomically), so that its presence marks the image done."""
-    import json
-
+    """Fit one image and write its outputs into ``out``; returns the summary line."""
     from .image_fit import fit_image
-    from .images import write_exr, write_png
 
     stem = Path(path).stem
-    maps_path = out / f"{stem}_maps.exr"
     fit = fit_image(path, **options)
+    maps_path = _write_fit(fit, out, f"{stem}_", str(path), options.get("illuminant", "D65"))
     summary = fit.summary()
-    write_png(out / f"{stem}_reconstructed.png", _encoded_srgb(fit.fitted_linear_rgb))
-    write_png(out / f"{stem}_dE2000.png", _delta_e_image(fit.residual_dE2000))
-    attributes = {
-        "skinfit:source": str(path),
-        "skinfit:illuminant": options.get("illuminant", "D65"),
-        "skinfit:white_balance": " ".join(f"{g:.9g}" for g in fit.white_balance),
-        "skinfit:summary": json.dumps(summary),
-    }
-    write_exr(maps_path, fit.maps(), attributes)
     return (
         f"{path}: {summary['fitted']} of {summary['pixels']} pixels fitted ({100 * summary['fitted_fraction']:.1f} %), "
         f"CIEDE2000 median {summary['median_dE2000']:.3g}, 95th percentile {summary['p95_dE2000']:.3g}, "
         f"blend {summary['melanin_blend']:.3g}, white balance {' '.join(f'{g:.3f}' for g in fit.white_balance)}, "
         f"{summary['seconds']:.1f} s -> {maps_path}"
     )
+
+
+def _write_fit(fit, out: Path, prefix: str, source: str, illuminant: str) -> Path:
+    """Write ``<prefix>reconstructed.png``, ``<prefix>dE2000.png`` and, last (atomically, so that its
+    presence marks the image done), ``<prefix>maps.exr``; returns the maps path."""
+    import json
+
+    from .images import write_exr, write_png
+
+    write_png(out / f"{prefix}reconstructed.png", _encoded_srgb(fit.fitted_linear_rgb))
+    write_png(out / f"{prefix}dE2000.png", _delta_e_image(fit.residual_dE2000))
+    attributes = {
+        "skinfit:source": source,
+        "skinfit:illuminant": illuminant,
+        "skinfit:white_balance": " ".join(f"{g:.9g}" for g in fit.white_balance),
+        "skinfit:summary": json.dumps(fit.summary()),
+    }
+    maps_path = out / f"{prefix}maps.exr"
+    write_exr(maps_path, fit.maps(), attributes)
+    return maps_path
 
 
 def _encoded_srgb(linear: np.ndarray, rows: int = 256) -> np.ndarray:

@@ -64,7 +64,6 @@ class ColourTable:
     haemoglobin_max: float
     nodes: int
     coefficients: np.ndarray  # (cells^2, 48)
-    node_rgb: np.ndarray  # (nodes, nodes, 3), exact colour at the nodes
     inverse_roots: np.ndarray  # (inverse_cells, inverse_cells, 2 branches, 2)
     inverse_edges: tuple[np.ndarray, np.ndarray]
 
@@ -75,14 +74,16 @@ class ColourTable:
         b = np.searchsorted(self.inverse_edges[1], chroma[:, 1])
         return self.inverse_roots[a, b]
 
+    def model_arguments(self):
+        """(melanin_blend, melanin_max, haemoglobin_max, weights): what ``model_rgb`` needs after
+        the roots to evaluate the exact model this table interpolates."""
+        weights = jnp.asarray(linear_srgb_weights(COLOUR_WAVELENGTHS_NM, self.illuminant))
+        return self.melanin_blend, self.melanin_max, self.haemoglobin_max, weights
+
     def parameters(self, roots):
         """(C_m, C_h) of normalised roots (..., 2)."""
         roots = np.clip(np.asarray(roots, dtype=float), 0.0, 1.0)
         return self.melanin_max * roots[..., 0] ** 2, self.haemoglobin_max * roots[..., 1] ** 2
-
-    def roots(self, melanin, haemoglobin):
-        """Normalised roots (..., 2) of C_m and C_h."""
-        return np.stack([np.sqrt(np.asarray(melanin) / self.melanin_max), np.sqrt(np.asarray(haemoglobin) / self.haemoglobin_max)], axis=-1)
 
 
 @functools.lru_cache(maxsize=8)
@@ -99,11 +100,11 @@ def colour_table(
 
     if not 0.0 <= melanin_blend <= 1.0:
         raise SkinfitInputError(f"melanin_blend must be within [0, 1], got {melanin_blend}")
-    weights = jnp.asarray(linear_srgb_weights(COLOUR_WAVELENGTHS_NM, illuminant))
     grid = np.linspace(0.0, 1.0, nodes)
     u, v = (a.ravel() for a in np.meshgrid(grid, grid, indexing="ij"))
-    model = (melanin_blend, melanin_max, haemoglobin_max, weights)
-    value, du, dv, duv = (np.asarray(a).reshape(nodes, nodes, 3) for a in _node_data(jnp.asarray(u), jnp.asarray(v), *model))
+    model = (float(melanin_blend), float(melanin_max), float(haemoglobin_max))
+    weights = jnp.asarray(linear_srgb_weights(COLOUR_WAVELENGTHS_NM, illuminant))
+    value, du, dv, duv = (np.asarray(a).reshape(nodes, nodes, 3) for a in _node_data(jnp.asarray(u), jnp.asarray(v), *model, weights))
     h = 1.0 / (nodes - 1)  # derivatives per unit root -> per unit cell coordinate
     coefficients = _patch_coefficients(value, h * du, h * dv, h * h * duv)
 
@@ -130,9 +131,8 @@ def colour_table(
     second = np.where(far.any(axis=1)[:, None], node_roots[near[np.arange(len(near)), np.argmax(far, axis=1)]], first)
     inverse = np.stack([first, second], axis=1).reshape(inverse_cells, inverse_cells, 2, 2)
     inner_edges = (edges[0, 1:-1].copy(), edges[1, 1:-1].copy())
-    return ColourTable(
-        float(melanin_blend), illuminant, float(melanin_max), float(haemoglobin_max), nodes, coefficients, value, inverse, inner_edges
-    )
+    blend, c_m_max, c_h_max = model
+    return ColourTable(blend, illuminant, c_m_max, c_h_max, nodes, coefficients, inverse, inner_edges)
 
 
 @jax.jit

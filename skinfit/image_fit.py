@@ -8,13 +8,13 @@ with R the DJ2006 diffuse reflectance at 400-700 nm / 10 nm, W the CIE 1931 2-de
 matching functions weighted by the illuminant (D65 by default, Bradford-adapted to D65 otherwise)
 and M the XYZ -> linear sRGB matrix (``skinfit.colorimetry``). Three channels carry three unknowns
 per pixel: C_m, C_h and the shading; the melanin blend is one value for the whole image (given, or
-fitted once by ``fit_melanin_blend``).
+chosen once by ``skinfit.calibration``).
 
 Per pixel, over fixed-size chunks compiled once:
 
 1. warm start: the inverse table (``skinfit.colour_table``) gives one or two starts from the
    pixel's chromaticity; the second (a second branch of the fold) only where it differs;
-2. solve: Gauss-Newton in lock-step on the model's colour spline (exact to ~3e-7 in linear sRGB),
+2. solve: Levenberg-Marquardt in lock-step on the model's colour spline (exact to ~3e-7 in linear sRGB),
    with the shading eliminated in closed form (variable projection: for a colour m the best
    shading is t.m / m.m), the residual relative to the pixel's brightness so that dark and bright
    pixels weigh alike, and the roots projected onto the box; converged when the step falls below
@@ -31,7 +31,6 @@ from __future__ import annotations
 
 import dataclasses
 import enum
-import functools
 
 import equinox as eqx
 import jax
@@ -248,17 +247,7 @@ def fit_pixels(
         raise SkinfitInputError("the image is empty")
     shape = rgb.shape[:-1]
     pixels = rgb.reshape(-1, 3)
-    status = np.full(len(pixels), PixelStatus.SUCCESS, dtype=np.uint8)
-    finite = np.all(np.isfinite(pixels), axis=1)
-    status[~finite | np.any(pixels < 0, axis=1) & finite] = PixelStatus.BAD_INPUT
-    clean = np.where(finite[:, None], pixels, 0.0)
-    status[(status == 0) & (clean.max(axis=1) < black_level)] = PixelStatus.BLACK
-    status[(status == 0) & (clean.max(axis=1) >= saturation_level)] = PixelStatus.SATURATED
-    if mask is not None:
-        mask = np.asarray(mask).reshape(-1)
-        if mask.shape[0] != len(pixels):
-            raise SkinfitInputError(f"mask has {mask.shape[0]} pixels, the image {len(pixels)}")
-        status[(status == 0) & ~(mask > 0)] = PixelStatus.MASKED
+    status, clean = _screen(pixels, mask, black_level, saturation_level)
 
     table = colour_table(float(melanin_blend), illuminant)
     todo = np.flatnonzero(status == 0)
@@ -270,7 +259,7 @@ def fit_pixels(
             shading_reference, pad_size(todo.size, chunk_size), progress,
         )
         if exact_steps:
-            exact_model = (float(melanin_blend), table.melanin_max, table.haemoglobin_max, jnp.asarray(linear_srgb_weights(COLOUR_WAVELENGTHS_NM, illuminant)))
+            exact_model = table.model_arguments()
             exact = lambda t, r: _exact_chunk(exact_model, r, t, exact_steps, step_tol)  # noqa: E731
             polished = map_batches(exact, (clean[todo], solved[0]), pad_size(todo.size, chunk_size), progress, "exact polish")
             solved = polished[:2] + [np.where(solved[2] <= step_tol, 0.0, np.inf)] + polished[3:]
@@ -295,6 +284,23 @@ def fit_pixels(
     maps["status"] = status
     maps["fitted_rgb"] = fitted
     return {k: v.reshape(*shape, *v.shape[1:]) for k, v in maps.items()}
+
+
+def _screen(pixels, mask, black_level, saturation_level):
+    """Status of pixels (n, 3) before fitting (``SUCCESS``: to be fitted) and the pixels with
+    non-finite values zeroed."""
+    status = np.full(len(pixels), PixelStatus.SUCCESS, dtype=np.uint8)
+    finite = np.all(np.isfinite(pixels), axis=1)
+    status[~finite | np.any(pixels < 0, axis=1) & finite] = PixelStatus.BAD_INPUT
+    clean = np.where(finite[:, None], pixels, 0.0)
+    status[(status == 0) & (clean.max(axis=1) < black_level)] = PixelStatus.BLACK
+    status[(status == 0) & (clean.max(axis=1) >= saturation_level)] = PixelStatus.SATURATED
+    if mask is not None:
+        mask = np.asarray(mask).reshape(-1)
+        if mask.shape[0] != len(pixels):
+            raise SkinfitInputError(f"mask has {mask.shape[0]} pixels, the image {len(pixels)}")
+        status[(status == 0) & ~(mask > 0)] = PixelStatus.MASKED
+    return status, clean
 
 
 def _solve(table, target, steps, straggler_steps, max_rounds, lm_max_steps, step_tol, reference, size, progress):
@@ -374,6 +380,16 @@ class ImageFit:
     def maps(self) -> dict[str, np.ndarray]:
         return {name: getattr(self, name) for name in self.MAP_NAMES}
 
+    def render(self, scale_melanin: float = 1.0, scale_haemoglobin: float = 1.0, illuminant: str = DEFAULT_ILLUMINANT) -> np.ndarray:
+        """Linear sRGB (h, w, 3) of the maps with scaled melanin and haemoglobin (an edit), through
+        the exact model and the fitted white balance. Pixels with maps (status up to
+        ``OUT_OF_MODEL``) are rendered; the others keep their fitted colour (0)."""
+        edited = render_maps(
+            scale_melanin * self.melanin, scale_haemoglobin * self.haemoglobin, self.shading,
+            melanin_blend=self.melanin_blend, illuminant=illuminant,
+        ) * np.asarray(self.white_balance)
+        return np.where((self.status <= PixelStatus.OUT_OF_MODEL)[..., None], edited, self.fitted_linear_rgb)
+
     def summary(self) -> dict[str, float]:
         """Pixels, fitted fraction, median and 95th-percentile CIEDE2000 of the fitted pixels,
         the blend and white balance, time."""
@@ -444,11 +460,13 @@ def fit_image(
     if fit_blend or white_balance is True:
         from .calibration import calibrate
 
-        fittable = _fittable(rgb, mask, options.get("black_level", 1e-4), options.get("saturation_level", 0.999))
+        pixels = rgb.reshape(-1, 3)
+        screened, _ = _screen(pixels, mask, options.get("black_level", 1e-4), options.get("saturation_level", 0.999))
+        fittable = screened == PixelStatus.SUCCESS
         if not fittable.any():
             raise SkinfitInputError("no pixel of the image can be fitted (all black, saturated, masked or invalid)")
         calibration = calibrate(
-            rgb[fittable], melanin_blend=None if fit_blend else melanin_blend, white_balance=white_balance is True, illuminant=illuminant
+            pixels[fittable], melanin_blend=None if fit_blend else melanin_blend, white_balance=white_balance is True, illuminant=illuminant
         )
         melanin_blend, gains = calibration.melanin_blend, np.asarray(calibration.white_balance)
     elif white_balance is not False:
@@ -488,15 +506,6 @@ def _fit_in_bands(rgb, gains, mask, options, progress, band_pixels: int = 1 << 2
         for k, v in part.items():
             maps[k][top : top + rows] = v
     return maps
-
-
-def _fittable(rgb, mask, black_level, saturation_level) -> np.ndarray:
-    """Pixels (h, w) that ``fit_pixels`` would try: finite, non-negative, neither black nor
-    saturated, inside the mask."""
-    with np.errstate(invalid="ignore"):
-        peak = rgb.max(axis=-1)
-        ok = np.all(np.isfinite(rgb), axis=-1) & np.all(rgb >= 0, axis=-1) & (peak >= black_level) & (peak < saturation_level)
-    return ok if mask is None else ok & (np.asarray(mask) > 0)
 
 
 def _is_path(value) -> bool:

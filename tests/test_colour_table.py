@@ -5,8 +5,7 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from skinfit.colorimetry import linear_srgb_weights
-from skinfit.colour_table import COLOUR_WAVELENGTHS_NM, chromaticity, colour_table, model_rgb, spline_rgb
+from skinfit.colour_table import chromaticity, colour_table, model_rgb, spline_rgb
 
 
 @pytest.fixture(scope="module")
@@ -20,8 +19,7 @@ def random_roots():
 
 
 def exact(roots, table):
-    weights = jnp.asarray(linear_srgb_weights(COLOUR_WAVELENGTHS_NM))
-    return model_rgb(jnp.asarray(roots), table.melanin_blend, table.melanin_max, table.haemoglobin_max, weights)
+    return model_rgb(jnp.asarray(roots), *table.model_arguments())
 
 
 def test_spline_matches_the_model_between_nodes(table, random_roots):

@@ -3,19 +3,11 @@
 import numpy as np
 import pytest
 
+from benchmarks.fit_image import smooth_maps  # the issue's round-trip image, shared with the benchmark
 from skinfit import cli
 from skinfit.colorimetry import srgb_encode
 from skinfit.image_fit import PixelStatus, fit_image, fit_pixels, render_maps
 from skinfit.images import read_exr_channels, write_exr, write_png
-
-
-def smooth_maps(n):
-    """Smooth maps over the issue's box: melanin 0.002-0.4, haemoglobin 0.002-0.08, shading 0.5-1."""
-    y, x = np.mgrid[0:n, 0:n] / (n - 1)
-    melanin = 0.002 + 0.398 * (0.5 + 0.5 * np.sin(3 * x + 1) * np.cos(2 * y))
-    haemoglobin = 0.002 + 0.078 * (0.5 + 0.5 * np.cos(4 * x * y + 0.5))
-    shading = 0.5 + 0.25 * (x + y)
-    return melanin, haemoglobin, shading
 
 
 @pytest.fixture(scope="module")
