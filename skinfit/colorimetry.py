@@ -179,11 +179,18 @@ def _linear_srgb_to_relative_xyz_matrix() -> np.ndarray:
 def linear_srgb_to_lab(linear: ArrayLike) -> Float[Array, "... 3"]:
     """CIE L*a*b* of linear sRGB colours (..., 3), relative to the sRGB white (D65, RGB = 1)."""
     linear = jnp.asarray(linear)
-    relative = linear @ jnp.asarray(_linear_srgb_to_relative_xyz_matrix().T, linear.dtype)  # XYZ / XYZ_white
+    matrix = _linear_srgb_to_relative_xyz_matrix()
+    rgb = linear[..., 0], linear[..., 1], linear[..., 2]
+    # the 3x3 product written out: XLA's CPU backend runs a matmul over a last axis of 3 as a
+    # separate, slow dot instead of fusing it
+    x, y, z = (sum(float(matrix[row, col]) * rgb[col] for col in range(3)) for row in range(3))
     knee = (6.0 / 29.0) ** 3
-    # cube root only above the knee, so its gradient never sees 0
-    f = jnp.where(relative > knee, jnp.cbrt(jnp.maximum(relative, knee)), relative / (3 * (6.0 / 29.0) ** 2) + 4.0 / 29.0)
-    return jnp.stack([116.0 * f[..., 1] - 16.0, 500.0 * (f[..., 0] - f[..., 1]), 200.0 * (f[..., 1] - f[..., 2])], axis=-1)
+
+    def f(t):  # cube root only above the knee, so its gradient never sees 0
+        return jnp.where(t > knee, jnp.cbrt(jnp.maximum(t, knee)), t / (3 * (6.0 / 29.0) ** 2) + 4.0 / 29.0)
+
+    fx, fy, fz = f(x), f(y), f(z)
+    return jnp.stack([116.0 * fy - 16.0, 500.0 * (fx - fy), 200.0 * (fy - fz)], axis=-1)
 
 
 def delta_e2000(lab_1: ArrayLike, lab_2: ArrayLike) -> Float[Array, "..."]:
@@ -214,12 +221,17 @@ def delta_e2000(lab_1: ArrayLike, lab_2: ArrayLike) -> Float[Array, "..."]:
     )
     h_mean = jnp.where(chromatic, h_mean, h_sum)
     deg = jnp.pi / 180.0
+    # T of the mean hue from one cosine and one sine (multiple-angle identities instead of four cosines)
+    cos_1, sin_1 = jnp.cos(h_mean), jnp.sin(h_mean)
+    cos_2, sin_2 = 2.0 * cos_1 * cos_1 - 1.0, 2.0 * sin_1 * cos_1
+    cos_3, sin_3 = cos_2 * cos_1 - sin_2 * sin_1, sin_2 * cos_1 + cos_2 * sin_1
+    cos_4, sin_4 = 2.0 * cos_2 * cos_2 - 1.0, 2.0 * sin_2 * cos_2
     t = (
         1.0
-        - 0.17 * jnp.cos(h_mean - 30 * deg)
-        + 0.24 * jnp.cos(2 * h_mean)
-        + 0.32 * jnp.cos(3 * h_mean + 6 * deg)
-        - 0.20 * jnp.cos(4 * h_mean - 63 * deg)
+        - 0.17 * (cos_1 * np.cos(30 * deg) + sin_1 * np.sin(30 * deg))
+        + 0.24 * cos_2
+        + 0.32 * (cos_3 * np.cos(6 * deg) - sin_3 * np.sin(6 * deg))
+        - 0.20 * (cos_4 * np.cos(63 * deg) + sin_4 * np.sin(63 * deg))
     )
     rotation = 30 * deg * jnp.exp(-(((h_mean / deg - 275.0) / 25.0) ** 2))
     r_c = 2.0 * jnp.sqrt(c_mean**7 / (c_mean**7 + 25.0**7))

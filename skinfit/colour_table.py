@@ -14,9 +14,12 @@ default 129 x 129 grid the spline matches the model to ~1e-9 in linear sRGB (mea
 per evaluation instead of the ~31-wavelength model.
 
 The inverse: a grid over chromaticity (r, g) / (r + g + b) stores, per cell, two warm starts (u, v):
-the table node of nearest chromaticity and the nearest one on another branch of the fold (the
-colour map folds over: with the shading free, (C_m 0.057, C_h 0.074, shading 0.75) and
-(0.0175, 0.0067, 0.374) look the same).
+the sample of nearest chromaticity and the nearest one on another branch of the fold (the colour
+map folds over: with the shading free, (C_m 0.057, C_h 0.074, shading 0.75) and
+(0.0175, 0.0067, 0.374) look the same), each with its chromaticity and the inverse of its
+chromaticity Jacobian, so that a pixel's start is a Newton step in chromaticity (which the shading
+does not move) from its cell's: on the round-trip image 81 % of the pixels then converge in one
+Levenberg-Marquardt step (53 % with the Newton step limited to 0.01 in the roots, under 1 % from the cell's start alone).
 """
 
 from __future__ import annotations
@@ -39,6 +42,10 @@ from .reflectance import diffuse_reflectance
 MELANIN_MAX = 0.5
 HAEMOGLOBIN_MAX = 0.15
 
+#: Largest move of a warm start along its chromaticity Jacobian (normalised roots): the linear
+#: model is poor near the fold, where the Jacobian is near singular.
+_AFFINE_REACH = 0.3
+
 #: Wavelengths of the colour integral (nm).
 COLOUR_WAVELENGTHS_NM = np.arange(400.0, 701.0, 10.0)
 
@@ -55,7 +62,8 @@ class ColourTable:
     in cell (i, j), with (a, b) the position within the cell in [0, 1]^2.
     ``inverse_roots[a, b, k]`` are the two warm starts (u, v) for chromaticity cell (a, b) of the
     grid whose interior cell edges along r and g are ``inverse_edges`` (the outer cells extend to
-    infinity).
+    infinity), ``inverse_chroma`` their chromaticities and ``inverse_jacobian`` the derivatives of
+    the roots along the chromaticity there (float32: they only start the solver).
     """
 
     melanin_blend: float
@@ -65,14 +73,19 @@ class ColourTable:
     nodes: int
     coefficients: np.ndarray  # (cells^2, 48)
     inverse_roots: np.ndarray  # (inverse_cells, inverse_cells, 2 branches, 2)
+    inverse_chroma: np.ndarray  # (inverse_cells, inverse_cells, 2 branches, 2)
+    inverse_jacobian: np.ndarray  # (inverse_cells, inverse_cells, 2 branches, 2 roots, 2 chroma)
     inverse_edges: tuple[np.ndarray, np.ndarray]
 
     def warm_starts(self, pixels: np.ndarray) -> np.ndarray:
-        """Both warm starts (n, 2 branches, 2) for linear sRGB pixels (n, 3)."""
-        chroma = chromaticity(pixels)
-        a = np.searchsorted(self.inverse_edges[0], chroma[:, 0])
-        b = np.searchsorted(self.inverse_edges[1], chroma[:, 1])
-        return self.inverse_roots[a, b]
+        """Both warm starts (n, 2 branches, 2) for linear sRGB pixels (n, 3) (see ``warm_starts``)."""
+        return np.asarray(warm_starts(self.device_inverse, jnp.asarray(pixels)))
+
+    @functools.cached_property
+    def device_inverse(self) -> tuple:
+        """The inverse table as JAX arrays, for ``warm_starts`` inside compiled code."""
+        arrays = (*self.inverse_edges, self.inverse_roots, self.inverse_chroma, self.inverse_jacobian)
+        return tuple(jnp.asarray(a) for a in arrays)
 
     def model_arguments(self):
         """(melanin_blend, melanin_max, haemoglobin_max, weights): what ``model_rgb`` needs after
@@ -111,8 +124,8 @@ def colour_table(
     # inverse warm starts from a finer sampling of the spline (4 samples per cell and axis)
     fine = np.linspace(0.0, 1.0, 4 * (nodes - 1) + 1)
     fine_roots = np.stack([a.ravel() for a in np.meshgrid(fine, fine, indexing="ij")], axis=-1)
-    fine_rgb = np.asarray(spline_rgb(jnp.asarray(coefficients), jnp.asarray(fine_roots))[0])
-    chroma = chromaticity(fine_rgb)
+    fine_colour = (np.asarray(a) for a in spline_rgb(jnp.asarray(coefficients), jnp.asarray(fine_roots)))
+    chroma, chroma_jacobian = _chromaticity_and_jacobian(*fine_colour)
     # Cells of equal sample count along each axis (quantiles): the colour map compresses much of
     # the box into a small patch of chromaticity, which a uniform grid would leave coarse.
     edges = np.quantile(chroma, np.linspace(0.0, 1.0, inverse_cells + 1), axis=0).T  # (2, cells + 1)
@@ -123,16 +136,35 @@ def colour_table(
     # First start: the nearest fine sample. Second: among the nodes within two cells in
     # chromaticity, the nearest one far from the first in the roots (or the first again): the fit
     # tries both where they differ and lets the shading decide.
-    _, nearest = cKDTree(chroma).query(cell_centres, workers=-1)
-    first = fine_roots[nearest]
+    _, first = cKDTree(chroma).query(cell_centres, workers=-1)
     node_roots = np.stack([u, v], axis=-1)
     distance, near = cKDTree(chromaticity(value.reshape(-1, 3))).query(cell_centres, k=24, workers=-1)
-    far = (np.linalg.norm(node_roots[near] - first[:, None], axis=-1) > 0.1) & (distance <= reach[:, None])
-    second = np.where(far.any(axis=1)[:, None], node_roots[near[np.arange(len(near)), np.argmax(far, axis=1)]], first)
-    inverse = np.stack([first, second], axis=1).reshape(inverse_cells, inverse_cells, 2, 2)
+    far = (np.linalg.norm(node_roots[near] - fine_roots[first][:, None], axis=-1) > 0.1) & (distance <= reach[:, None])
+    node = near[np.arange(len(near)), np.argmax(far, axis=1)]
+    node_in_fine = 4 * (node // nodes) * len(fine) + 4 * (node % nodes)  # nodes are every 4th fine sample
+    second = np.where(far.any(axis=1), node_in_fine, first)
+    starts = np.stack([first, second], axis=1).reshape(inverse_cells, inverse_cells, 2)
+    inverse = [a[starts].astype(np.float32) for a in (fine_roots, chroma, _inverse_2x2(chroma_jacobian))]
     inner_edges = (edges[0, 1:-1].copy(), edges[1, 1:-1].copy())
     blend, c_m_max, c_h_max = model
-    return ColourTable(blend, illuminant, c_m_max, c_h_max, nodes, coefficients, inverse, inner_edges)
+    return ColourTable(blend, illuminant, c_m_max, c_h_max, nodes, coefficients, *inverse, inner_edges)
+
+
+@jax.jit
+def warm_starts(inverse, pixels):
+    """Both warm starts (n, 2 branches, 2) for linear sRGB pixels (n, 3) from
+    ``ColourTable.device_inverse``: each cell's start moved by the inverse Jacobian of its
+    chromaticity towards the pixel's (a Newton step in chromaticity, which the shading does not
+    move), by at most ``_AFFINE_REACH`` in the roots."""
+    edges_r, edges_g, roots, chroma_at, jacobian = inverse
+    total = pixels.sum(axis=-1)
+    chroma = pixels[:, :2] / jnp.where(total > 0, total, 1.0)[:, None]
+    a, b = jnp.searchsorted(edges_r, chroma[:, 0]), jnp.searchsorted(edges_g, chroma[:, 1])
+    offset = chroma[:, None, :] - chroma_at[a, b]  # (n, 2 branches, 2)
+    jacobian = jacobian[a, b]
+    step = jacobian[..., 0] * offset[..., :1] + jacobian[..., 1] * offset[..., 1:]
+    step = step * jnp.minimum(1.0, _AFFINE_REACH / jnp.maximum(jnp.abs(step).max(axis=-1, keepdims=True), 1e-30))
+    return jnp.clip(roots[a, b] + step, 0.0, 1.0)
 
 
 @jax.jit
@@ -196,22 +228,51 @@ def _patch_coefficients(value, du, dv, duv) -> np.ndarray:
 
 def spline_rgb(coefficients, roots):
     """The spline's colour (n, 3) at roots (n, 2) in [0, 1]^2 and its derivatives d/du, d/dv (n, 3)."""
+    channels = spline_channels(coefficients, roots[:, 0], roots[:, 1])
+    return tuple(jnp.stack([channel[i] for channel in channels], axis=-1) for i in range(3))
+
+
+def spline_channels(coefficients, u, v):
+    """The spline at roots u, v (n,) in [0, 1], per channel: ((value, d/du, d/dv) of r, of g, of b).
+
+    One channel at a time over columns of the gathered coefficients, Horner in b then in a:
+    XLA's CPU backend runs these plain (n,) products several times faster than contractions over
+    the tiny (4, 4, 3) axes of a (n, 48) block."""
     cells = int(round(np.sqrt(coefficients.shape[0])))
-    x = jnp.clip(roots, 0.0, 1.0) * cells
-    cell = jnp.clip(jnp.floor(x), 0, cells - 1)
-    a, b = x[:, 0] - cell[:, 0], x[:, 1] - cell[:, 1]
-    index = cell[:, 0].astype(jnp.int32) * cells + cell[:, 1].astype(jnp.int32)
-    c = coefficients[index].reshape(-1, 4, 4, 3)  # [n, p, q, channel]
-    # Horner in b (value and slope), then in a; plain products, which XLA's CPU backend runs far
-    # faster than batched contractions of these tiny shapes (and pixel-first: a channel-first
-    # layout measured 3x slower)
-    b_, a_ = b[:, None, None], a[:, None]
-    along_b = c[:, :, 0] + b_ * (c[:, :, 1] + b_ * (c[:, :, 2] + b_ * c[:, :, 3]))  # (n, p, channel)
-    along_db = c[:, :, 1] + b_ * (2.0 * c[:, :, 2] + 3.0 * b_ * c[:, :, 3])
-    value = along_b[:, 0] + a_ * (along_b[:, 1] + a_ * (along_b[:, 2] + a_ * along_b[:, 3]))
-    d_u = (along_b[:, 1] + a_ * (2.0 * along_b[:, 2] + 3.0 * a_ * along_b[:, 3])) * cells
-    d_v = (along_db[:, 0] + a_ * (along_db[:, 1] + a_ * (along_db[:, 2] + a_ * along_db[:, 3]))) * cells
-    return value, d_u, d_v
+    x, y = jnp.clip(u, 0.0, 1.0) * cells, jnp.clip(v, 0.0, 1.0) * cells
+    i, j = jnp.clip(jnp.floor(x), 0, cells - 1), jnp.clip(jnp.floor(y), 0, cells - 1)
+    a, b = x - i, y - j
+    c = coefficients[i.astype(jnp.int32) * cells + j.astype(jnp.int32)]  # (n, 48)
+    channels = []
+    for channel in range(3):
+        k = lambda p, q: c[:, 3 * (4 * p + q) + channel]  # noqa: E731  (coefficient of a^p b^q)
+        along_b = [k(p, 0) + b * (k(p, 1) + b * (k(p, 2) + b * k(p, 3))) for p in range(4)]
+        along_db = [k(p, 1) + b * (2.0 * k(p, 2) + 3.0 * b * k(p, 3)) for p in range(4)]
+        value = along_b[0] + a * (along_b[1] + a * (along_b[2] + a * along_b[3]))
+        d_u = (along_b[1] + a * (2.0 * along_b[2] + 3.0 * a * along_b[3])) * cells
+        d_v = (along_db[0] + a * (along_db[1] + a * (along_db[2] + a * along_db[3]))) * cells
+        channels.append((value, d_u, d_v))
+    return tuple(channels)
+
+
+def _chromaticity_and_jacobian(rgb, d_u, d_v):
+    """Chromaticity (n, 2) of colours (n, 3) and its derivatives (n, 2 chroma, 2 roots) from the
+    colour's derivatives along the roots."""
+    total = rgb.sum(axis=-1, keepdims=True)
+
+    def derivative(d):
+        return (d[:, :2] * total - rgb[:, :2] * d.sum(axis=-1, keepdims=True)) / total**2
+
+    return rgb[:, :2] / total, np.stack([derivative(d_u), derivative(d_v)], axis=-1)
+
+
+def _inverse_2x2(matrices):
+    """Inverses of (n, 2, 2) matrices; 0 where singular (no correction is better than a wild one)."""
+    det = matrices[:, 0, 0] * matrices[:, 1, 1] - matrices[:, 0, 1] * matrices[:, 1, 0]
+    scale = np.abs(matrices).max(axis=(1, 2)) ** 2
+    safe = np.abs(det) > 1e-12 * scale
+    adjugate = np.stack([np.stack([matrices[:, 1, 1], -matrices[:, 0, 1]], -1), np.stack([-matrices[:, 1, 0], matrices[:, 0, 0]], -1)], -2)
+    return np.where(safe[:, None, None], adjugate / np.where(safe, det, 1.0)[:, None, None], 0.0)
 
 
 def chromaticity(rgb: np.ndarray) -> np.ndarray:

@@ -13,13 +13,14 @@ chosen once by ``skinfit.calibration``).
 Per pixel, over fixed-size chunks compiled once:
 
 1. warm start: the inverse table (``skinfit.colour_table``) gives one or two starts from the
-   pixel's chromaticity; the second (a second branch of the fold) only where it differs;
+   pixel's chromaticity, each refined by a Newton step in chromaticity; the second (a second
+   branch of the fold) only where it differs;
 2. solve: Levenberg-Marquardt in lock-step on the model's colour spline (exact to ~3e-7 in linear sRGB),
    with the shading eliminated in closed form (variable projection: for a colour m the best
    shading is t.m / m.m), the residual relative to the pixel's brightness so that dark and bright
-   pixels weigh alike, and the roots projected onto the box; converged when the step falls below
-   ``step_tol``. Pixels still moving are gathered for more steps, and what remains goes to
-   optimistix's Levenberg-Marquardt;
+   pixels weigh alike, and the roots projected onto the box; converged when the undamped
+   Gauss-Newton step still to go is at most ``step_tol``. The others are gathered for more steps,
+   and what remains goes to optimistix's Levenberg-Marquardt;
 3. optionally (``exact_steps``), Gauss-Newton steps on the exact forward model remove the
    spline's last ~1e-7.
 
@@ -31,6 +32,7 @@ from __future__ import annotations
 
 import dataclasses
 import enum
+from typing import NamedTuple
 
 import equinox as eqx
 import jax
@@ -41,7 +43,7 @@ import optimistix as optx
 from ._batching import map_batches, pad_size
 from ._validate import SkinfitInputError
 from .colorimetry import DEFAULT_ILLUMINANT, delta_e2000, linear_srgb_to_lab, linear_srgb_weights
-from .colour_table import COLOUR_WAVELENGTHS_NM, colour_table, model_rgb, params_rgb, spline_rgb
+from .colour_table import COLOUR_WAVELENGTHS_NM, colour_table, model_rgb, params_rgb, spline_channels, spline_rgb, warm_starts
 
 
 class PixelStatus(enum.IntEnum):
@@ -57,11 +59,17 @@ class PixelStatus(enum.IntEnum):
 
 
 def _spline_colour(coefficients):
-    return lambda roots: spline_rgb(coefficients, roots)
+    """Colour of the spline at roots u, v (n,): (value, d/du, d/dv), each a tuple of 3 channels."""
+
+    def colour(u, v):
+        channels = spline_channels(coefficients, u, v)
+        return tuple(tuple(channel[i] for channel in channels) for i in range(3))
+
+    return colour
 
 
 def _exact_colour(melanin_blend, melanin_max, haemoglobin_max, weights):
-    """Exact model colour and its derivatives along both roots, (n, 3) each."""
+    """The exact model's colour at roots u, v (n,), in the layout of ``_spline_colour``."""
 
     def one(roots):
         colour = lambda r: model_rgb(r[None], melanin_blend, melanin_max, haemoglobin_max, weights)[0]  # noqa: E731
@@ -69,29 +77,51 @@ def _exact_colour(melanin_blend, melanin_max, haemoglobin_max, weights):
         dv = jax.jvp(colour, (roots,), (jnp.array([0.0, 1.0], roots.dtype),))[1]
         return value, du, dv
 
-    return jax.vmap(one)
+    def colour(u, v):
+        return tuple(tuple(a[:, c] for c in range(3)) for a in jax.vmap(one)(jnp.stack([u, v], axis=-1)))
+
+    return colour
 
 
 def _dot3(a, b):
-    """Dot product over a last axis of length 3, written out: XLA's CPU backend runs reductions
-    over such short axes several times slower than three products and two sums."""
-    return a[..., 0] * b[..., 0] + a[..., 1] * b[..., 1] + a[..., 2] * b[..., 2]
+    """Dot product of two colours held as 3-tuples of (n,) channels, written out."""
+    return a[0] * b[0] + a[1] * b[1] + a[2] * b[2]
 
 
-def _projected(colour, roots, target, scale):
-    """Variable projection at roots (n, 2): relative residual r = (t - k m) / |t| with the best
-    shading k = t.m / m.m, its derivatives along both roots (n, 3 each), k (n,) and m (n, 3)."""
-    m, dm_u, dm_v = colour(roots)
+class _Point(NamedTuple):
+    """What one iterate carries per pixel (each (n,)): the roots, the cost |r|^2 of the relative
+    residual r (shading eliminated), the 2x2 normal equations J^T J (uu, uv, vv) and J^T r
+    (gu, gv), the best shading and the model colour (3 channels)."""
+
+    u: jax.Array
+    v: jax.Array
+    cost: jax.Array
+    uu: jax.Array
+    uv: jax.Array
+    vv: jax.Array
+    gu: jax.Array
+    gv: jax.Array
+    shading: jax.Array
+    colour: tuple
+
+
+def _projected(colour, u, v, target, scale) -> _Point:
+    """Variable projection at roots u, v (n,): relative residual r = (t - k m) |t|^-1 with the best
+    shading k = t.m / m.m, reduced to the normal equations of the two roots. Only these ten numbers
+    per pixel travel between steps: carrying r and J (13 more) made every kept-or-refused
+    selection recompute the residual."""
+    m, dm_u, dm_v = colour(u, v)
     mm = _dot3(m, m)
     tm = _dot3(target, m)
     k = tm / mm
-    r = (target - k[:, None] * m) * scale[:, None]
+    r = tuple((t - k * c) * scale for t, c in zip(target, m))
 
     def d_residual(dm):
-        dk = _dot3(target, dm) / mm - tm * 2.0 * _dot3(m, dm) / mm**2
-        return -(dk[:, None] * m + k[:, None] * dm) * scale[:, None]
+        dk = _dot3(target, dm) / mm - tm * 2.0 * _dot3(m, dm) / (mm * mm)
+        return tuple(-(dk * c + k * d) * scale for c, d in zip(m, dm))
 
-    return r, d_residual(dm_u), d_residual(dm_v), k, m
+    ju, jv = d_residual(dm_u), d_residual(dm_v)
+    return _Point(u, v, _dot3(r, r), _dot3(ju, ju), _dot3(ju, jv), _dot3(jv, jv), _dot3(ju, r), _dot3(jv, r), k, m)
 
 
 #: Lower bound of the roots in the solver: C = max * root^2 has zero slope at root 0, which would
@@ -99,84 +129,97 @@ def _projected(colour, roots, target, scale):
 _ROOT_FLOOR = 1e-3
 
 
-def _stationary(roots, r, ju, jv, tol=1e-4):
+def _step(point: _Point, damping):
+    """The damped Gauss-Newton step (Marquardt's scaling) projected on the box: a root on a bound
+    that its step pushes out of the box stays there and the other takes its own one-variable step
+    (clipping the joint step instead stalls on the bound)."""
+    u, v, _, uu, uv, vv, gu, gv = point[:8]
+    floor = 1e-12 * jnp.maximum(uu, vv) + 1e-300  # against a dead direction
+    du, dv = uu * (1.0 + damping) + floor, vv * (1.0 + damping) + floor
+    det = du * dv - uv * uv
+    step_u, step_v = -(dv * gu - uv * gv) / det, -(du * gv - uv * gu) / det
+    out_u = ((u <= _ROOT_FLOOR) & (step_u < 0.0)) | ((u >= 1.0) & (step_u > 0.0))
+    out_v = ((v <= _ROOT_FLOOR) & (step_v < 0.0)) | ((v >= 1.0) & (step_v > 0.0))
+    step_u, step_v = jnp.where(out_v, -gu / du, step_u), jnp.where(out_u, -gv / dv, step_v)
+    step_u, step_v = jnp.where(out_u, 0.0, step_u), jnp.where(out_v, 0.0, step_v)
+    finite = jnp.isfinite(step_u) & jnp.isfinite(step_v)
+    return jnp.where(finite, step_u, 0.0), jnp.where(finite, step_v, 0.0)
+
+
+def _stationary(point: _Point, tol=1e-4):
     """First-order optimality on the box: each free column of the Jacobian orthogonal to the
     residual to within ``tol`` (cosine); a column at a bound that the gradient pushes out of the
     box counts as orthogonal. At cosine c the step still to go is ~ c |r| / |J|: 1e-4 leaves
     ~1e-6 in the roots for the 1 % residuals of colours just outside the gamut."""
-    norm_r = jnp.sqrt(_dot3(r, r))
+    norm_r = jnp.sqrt(point.cost)
 
-    def free_cosine(j, x):
-        g = _dot3(j, r)  # the cost's half-gradient along this root
+    def free_cosine(g, jj, x):  # g: the cost's half-gradient along this root, jj = |J column|^2
         blocked = ((x <= _ROOT_FLOOR) & (g > 0.0)) | ((x >= 1.0) & (g < 0.0))
-        return jnp.where(blocked, 0.0, jnp.abs(g) / (jnp.sqrt(_dot3(j, j)) * norm_r + 1e-300))
+        return jnp.where(blocked, 0.0, jnp.abs(g) / (jnp.sqrt(jj) * norm_r + 1e-300))
 
-    return jnp.maximum(free_cosine(ju, roots[:, 0]), free_cosine(jv, roots[:, 1])) <= tol
+    return jnp.maximum(free_cosine(point.gu, point.uu, point.u), free_cosine(point.gv, point.vv, point.v)) <= tol
 
 
-def _gauss_newton(colour, roots, target, steps, step_tol):
-    """``steps`` Levenberg-Marquardt steps in lock-step over pixels (n, 3) from roots (n, 2).
+def _gauss_newton(colour, roots, target, damping, steps):
+    """``steps`` Levenberg-Marquardt steps in lock-step over pixels (n, 3) from roots (n, 2) with
+    the damping (n,) they start with (a straggler goes on with the damping it stopped at).
 
-    Each step solves the 2x2 damped normal equations (Marquardt's scaling), projects the step onto
-    the box and keeps it only if the cost does not rise; the damping falls after a kept step and
-    rises after a refused one (under heavy melanin the haemoglobin direction is weak and
-    undamped Gauss-Newton overshoots). A pixel has converged when its last step moved (or, refused,
-    would have moved) the roots by at most ``step_tol``: ``last`` is that size (inf after a refused
-    larger step).
+    Each step solves the 2x2 damped normal equations, projects the step onto the box and keeps it
+    only if the cost does not rise; the damping falls after a kept step and rises after a refused
+    one (under heavy melanin the haemoglobin direction is weak and undamped Gauss-Newton
+    overshoots). ``remaining`` estimates each pixel's distance to the optimum in the roots: the
+    undamped step from the final point (Gauss-Newton converges quadratically, so after it the
+    error would be ~its square), or 0 where the point is first-order stationary (colours outside
+    the gamut, where the steps shrink only linearly).
 
-    Returns the roots (n, 2), the shading, ``last``, the relative residual (each (n,)) and the
-    fitted colour (n, 3).
+    Returns the roots (n, 2), the shading, ``remaining``, the relative residual (each (n,)), the
+    fitted colour (n, 3) and the damping (n,).
     """
+    target = (target[:, 0], target[:, 1], target[:, 2])
     scale = 1.0 / jnp.sqrt(_dot3(target, target))
 
-    def evaluate(roots):
-        r, ju, jv, k, m = _projected(colour, roots, target, scale)
-        return roots, r, ju, jv, k, m, _dot3(r, r)
-
     def step(_, state):
-        point, damping, _ = state
-        roots, r, ju, jv, _, _, cost = point
-        uu, uv, vv = _dot3(ju, ju), _dot3(ju, jv), _dot3(jv, jv)
-        gu, gv = _dot3(ju, r), _dot3(jv, r)
-        floor = 1e-12 * jnp.maximum(uu, vv) + 1e-300  # against a dead direction
-        du, dv = uu * (1.0 + damping) + floor, vv * (1.0 + damping) + floor
-        det = du * dv - uv * uv
-        step_u, step_v = -(dv * gu - uv * gv) / det, -(du * gv - uv * gu) / det
-        # a root on a bound that its step pushes out of the box stays there; the other then
-        # takes its own one-variable step (clipping the joint step instead stalls on the bound)
-        out_u = ((roots[:, 0] <= _ROOT_FLOOR) & (step_u < 0.0)) | ((roots[:, 0] >= 1.0) & (step_u > 0.0))
-        out_v = ((roots[:, 1] <= _ROOT_FLOOR) & (step_v < 0.0)) | ((roots[:, 1] >= 1.0) & (step_v > 0.0))
-        step_u, step_v = jnp.where(out_v, -gu / du, step_u), jnp.where(out_u, -gv / dv, step_v)
-        step_u, step_v = jnp.where(out_u, 0.0, step_u), jnp.where(out_v, 0.0, step_v)
-        delta = jnp.stack([step_u, step_v], axis=-1)
-        delta = jnp.where(jnp.isfinite(delta), delta, 0.0)
-        trial = evaluate(jnp.clip(roots + delta, _ROOT_FLOOR, 1.0))
-        keep = trial[-1] <= cost
-        point = jax.tree.map(lambda new, old: jnp.where(keep.reshape(-1, *[1] * (new.ndim - 1)), new, old), trial, point)
-        moved = jnp.abs(trial[0] - roots)
-        moved = jnp.maximum(moved[:, 0], moved[:, 1])
-        damping = jnp.where(keep, jnp.maximum(damping * 0.1, 1e-9), jnp.minimum(damping * 10.0, 1e9))
-        # Converged: a step within the tolerance (kept, or refused: rounding at the optimum), or
-        # the current point has the residual orthogonal to the Jacobian's free columns
-        # (first-order optimal with a non-zero residual: a colour outside the model's gamut, where
-        # the steps shrink only linearly)
-        stationary = _stationary(*point[:4])
-        return point, damping, jnp.where(stationary, 0.0, jnp.where(keep | (moved <= step_tol), moved, jnp.inf))
+        point, damping = state
+        step_u, step_v = _step(point, damping)
+        trial = _projected(
+            colour, jnp.clip(point.u + step_u, _ROOT_FLOOR, 1.0), jnp.clip(point.v + step_v, _ROOT_FLOOR, 1.0), target, scale
+        )
+        keep = trial.cost <= point.cost
+        point = jax.tree.map(lambda new, old: jnp.where(keep, new, old), trial, point)
+        return point, jnp.where(keep, jnp.maximum(damping * 0.1, 1e-9), jnp.minimum(damping * 10.0, 1e9))
 
-    n = target.shape[0]
-    start = (evaluate(jnp.clip(roots, _ROOT_FLOOR, 1.0)), jnp.full(n, 1e-3, target.dtype), jnp.full(n, jnp.inf, target.dtype))
-    (roots, r, _, _, shading, m, _), _, last = jax.lax.fori_loop(0, steps, step, start)
-    return roots, shading, last, jnp.sqrt(_dot3(r, r)), shading[:, None] * m
+    start = jnp.clip(roots, _ROOT_FLOOR, 1.0)
+    start = _projected(colour, start[:, 0], start[:, 1], target, scale)
+    point, damping = jax.lax.fori_loop(0, steps, step, (start, damping))
+    step_u, step_v = _step(point, 0.0)
+    remaining = jnp.where(_stationary(point), 0.0, jnp.maximum(jnp.abs(step_u), jnp.abs(step_v)))
+    fitted = jnp.stack([point.shading * c for c in point.colour], axis=-1)
+    return jnp.stack([point.u, point.v], axis=-1), point.shading, remaining, jnp.sqrt(point.cost), fitted, damping
+
+
+#: Levenberg-Marquardt's first damping: the affine warm starts are close enough that Gauss-Newton
+#: rarely overshoots from them; a refused step raises it tenfold.
+_INITIAL_DAMPING = 1e-5
 
 
 @jax.jit
-def _spline_chunk(coefficients, roots, target, steps, step_tol):
-    return _gauss_newton(_spline_colour(coefficients), roots, target, steps, step_tol)
+def _spline_chunk(coefficients, roots, target, damping, steps):
+    return _gauss_newton(_spline_colour(coefficients), roots, target, damping, steps)
 
 
 @jax.jit
-def _exact_chunk(exact_model, roots, target, steps, step_tol):
-    return _gauss_newton(_exact_colour(*exact_model), roots, target, steps, step_tol)
+def _first_pass_chunk(coefficients, inverse, target, steps):
+    """Warm starts and ``steps`` steps from the first; also the second start (n, 2) for a retry
+    and whether it differs from the first (n,)."""
+    starts = warm_starts(inverse, target)
+    damping = jnp.full(len(target), _INITIAL_DAMPING, target.dtype)
+    solved = _gauss_newton(_spline_colour(coefficients), starts[:, 0], target, damping, steps)
+    return (*solved, starts[:, 1], jnp.any(starts[:, 0] != starts[:, 1], axis=-1))
+
+
+@jax.jit
+def _exact_chunk(exact_model, roots, target, steps):
+    return _gauss_newton(_exact_colour(*exact_model), roots, target, jnp.full(len(roots), _INITIAL_DAMPING, roots.dtype), steps)
 
 
 @jax.jit
@@ -210,9 +253,9 @@ def fit_pixels(
     melanin_blend: float = 0.7,
     illuminant: str = DEFAULT_ILLUMINANT,
     mask: np.ndarray | None = None,
-    steps: int = 4,
-    straggler_steps: int = 8,
-    max_straggler_rounds: int = 4,
+    steps: int = 1,
+    straggler_steps: int = 2,
+    max_straggler_rounds: int = 16,
     lm_max_steps: int = 64,
     exact_steps: int = 0,
     step_tol: float = 1e-7,
@@ -226,9 +269,10 @@ def fit_pixels(
     """Fit every pixel of a linear sRGB image (h, w, 3) (or pixels (n, 3)).
 
     Args:
-        steps: Gauss-Newton steps for every pixel; ``straggler_steps`` more, up to
-            ``max_straggler_rounds`` times, for those still moving by more than ``step_tol`` (in
-            normalised roots), then up to ``lm_max_steps`` of Levenberg-Marquardt.
+        steps: Levenberg-Marquardt steps for every pixel; ``straggler_steps`` more, up to
+            ``max_straggler_rounds`` times, for those whose estimated distance to the optimum
+            (the undamped Gauss-Newton step, in normalised roots) is above ``step_tol``, then up
+            to ``lm_max_steps`` of optimistix's Levenberg-Marquardt.
         exact_steps: Gauss-Newton steps on the exact model after the spline fit (0: none).
         shading_reference: the shading that decides between the fold's branches (default: the
             median shading of the pixels with one branch).
@@ -252,7 +296,7 @@ def fit_pixels(
     table = colour_table(float(melanin_blend), illuminant)
     todo = np.flatnonzero(status == 0)
     n = len(pixels)
-    roots, shading, last, delta_e, fitted = np.zeros((n, 2)), np.zeros(n), np.zeros(n), np.zeros(n), np.zeros((n, 3))
+    roots, shading, remaining, delta_e, fitted = np.zeros((n, 2)), np.zeros(n), np.zeros(n), np.zeros(n), np.zeros((n, 3))
     if todo.size:
         solved = _solve(
             table, clean[todo], steps, straggler_steps, max_straggler_rounds, lm_max_steps, step_tol,
@@ -260,12 +304,14 @@ def fit_pixels(
         )
         if exact_steps:
             exact_model = table.model_arguments()
-            exact = lambda t, r: _exact_chunk(exact_model, r, t, exact_steps, step_tol)  # noqa: E731
-            polished = map_batches(exact, (clean[todo], solved[0]), pad_size(todo.size, chunk_size), progress, "exact polish")
-            solved = polished[:2] + [np.where(solved[2] <= step_tol, 0.0, np.inf)] + polished[3:]
-        roots[todo], shading[todo], last[todo], _, fitted[todo] = solved
+            exact = lambda t, r: _exact_chunk(exact_model, r, t, exact_steps)  # noqa: E731
+            polished = map_batches(exact, (clean[todo], solved[0]), pad_size(todo.size, chunk_size), progress, "exact polish")[:5]
+            # converged: the spline fit had, and the exact steps leave at most step_tol to go
+            polished[2] = np.where(solved[2] <= step_tol, polished[2], np.inf)
+            solved = polished
+        roots[todo], shading[todo], remaining[todo], _, fitted[todo] = solved
         (delta_e[todo],) = map_batches(_delta_e_chunk, (clean[todo], fitted[todo]), pad_size(todo.size, chunk_size))
-        status[todo[last[todo] > step_tol]] = PixelStatus.MAX_STEPS
+        status[todo[remaining[todo] > step_tol]] = PixelStatus.MAX_STEPS
         # a colour the model misses by more than max_delta_e is not skin as the camera model sees
         # it, whether or not the solver settled (colours far outside the gamut settle slowly)
         status[todo[delta_e[todo] > max_delta_e]] = PixelStatus.OUT_OF_MODEL
@@ -289,12 +335,17 @@ def fit_pixels(
 def _screen(pixels, mask, black_level, saturation_level):
     """Status of pixels (n, 3) before fitting (``SUCCESS``: to be fitted) and the pixels with
     non-finite values zeroed."""
-    status = np.full(len(pixels), PixelStatus.SUCCESS, dtype=np.uint8)
-    finite = np.all(np.isfinite(pixels), axis=1)
-    status[~finite | np.any(pixels < 0, axis=1) & finite] = PixelStatus.BAD_INPUT
-    clean = np.where(finite[:, None], pixels, 0.0)
-    status[(status == 0) & (clean.max(axis=1) < black_level)] = PixelStatus.BLACK
-    status[(status == 0) & (clean.max(axis=1) >= saturation_level)] = PixelStatus.SATURATED
+    # column by column: NumPy reduces over a last axis of 3 several times slower
+    columns = pixels[:, 0], pixels[:, 1], pixels[:, 2]
+    finite = np.isfinite(columns[0]) & np.isfinite(columns[1]) & np.isfinite(columns[2])
+    negative = (columns[0] < 0) | (columns[1] < 0) | (columns[2] < 0)
+    clean = pixels if finite.all() else np.where(finite[:, None], pixels, 0.0)
+    brightest = np.maximum(np.maximum(clean[:, 0], clean[:, 1]), clean[:, 2])
+    status = np.select(
+        [~finite | negative, brightest < black_level, brightest >= saturation_level],
+        [PixelStatus.BAD_INPUT, PixelStatus.BLACK, PixelStatus.SATURATED],
+        PixelStatus.SUCCESS,
+    ).astype(np.uint8)
     if mask is not None:
         mask = np.asarray(mask).reshape(-1)
         if mask.shape[0] != len(pixels):
@@ -305,43 +356,50 @@ def _screen(pixels, mask, black_level, saturation_level):
 
 def _solve(table, target, steps, straggler_steps, max_rounds, lm_max_steps, step_tol, reference, size, progress):
     """The spline fit of pixels (n, 3): warm starts, lock-step steps, the second branch where it may
-    win, stragglers. Returns roots, shading, last step, relative residual and fitted colour."""
+    win, stragglers. Returns roots, shading, the distance still to go, relative residual and fitted
+    colour."""
     coefficients = jnp.asarray(table.coefficients)
-    spline = lambda count: lambda t, r: _spline_chunk(coefficients, r, t, count, step_tol)  # noqa: E731
-    starts = table.warm_starts(target)
-    out = map_batches(spline(steps), (target, starts[:, 0]), size, progress, "fitting pixels")
+    spline = lambda count: lambda t, r, d: _spline_chunk(coefficients, r, t, d, count)  # noqa: E731
+    initial = lambda n: np.full(n, _INITIAL_DAMPING)  # noqa: E731
+    first = lambda t: _first_pass_chunk(coefficients, table.device_inverse, t, steps)  # noqa: E731
+    *out, second, two = map_batches(first, (target,), size, progress, "fitting pixels")
     # The fold's second branch, tried only where the inverse table has one and the first branch's
     # shading is far from the image's typical shading (the branches' shadings differ by 2-5x).
-    two = np.any(starts[:, 0] != starts[:, 1], axis=-1)
     if reference is None:
         good = out[1][~two & (out[1] > 0)]
         reference = float(np.median(good)) if good.size else 1.0
     doubtful = np.abs(np.log(np.maximum(out[1], 1e-12) / reference)) > np.log(1.25)
     retry = np.flatnonzero(two & (doubtful | (out[3] > 1e-2)))
     if retry.size:
-        other = map_batches(spline(steps), (target[retry], starts[retry, 1]), pad_size(retry.size, size))
+        other = map_batches(spline(steps), (target[retry], second[retry], initial(retry.size)), _SUBSET_CHUNK)
         both = [np.stack([a[retry], b]) for a, b in zip(out, other)]  # each (2, len(retry), ...)
         choice = _choose_branch(both[1], both[3], reference)
         for full, pair in zip(out, both):
             full[retry] = pair[choice, np.arange(retry.size)]
-    roots, shading, last, residual, fitted = out
+    roots, shading, remaining, residual, fitted, damping = out
 
-    moving = np.flatnonzero(last > step_tol)
+    moving = np.flatnonzero(remaining > step_tol)
     for _ in range(max_rounds):  # gathered, so that converged pixels cost nothing more
         if not moving.size:
             break
-        more = map_batches(spline(straggler_steps), (target[moving], roots[moving]), pad_size(moving.size, 1024))
+        more = map_batches(spline(straggler_steps), (target[moving], roots[moving], damping[moving]), _SUBSET_CHUNK)
         for full, part in zip(out, more):
             full[moving] = part
-        moving = moving[last[moving] > step_tol]
+        moving = moving[remaining[moving] > step_tol]
     if moving.size and lm_max_steps:
         lm = lambda t, r: _levenberg_marquardt(coefficients, r, t, lm_max_steps, 1e-10, 1e-12)  # noqa: E731
         lm_roots, lm_ok = map_batches(lm, (target[moving], roots[moving]), pad_size(moving.size, 256))
-        final = map_batches(spline(0), (target[moving], lm_roots), pad_size(moving.size, 256))
+        final = map_batches(spline(0), (target[moving], lm_roots, damping[moving]), pad_size(moving.size, 256))
         for full, part in zip(out, final):
             full[moving] = part
-        last[moving] = np.where(lm_ok, 0.0, np.inf)
-    return out
+        remaining[moving] = np.where(lm_ok, 0.0, np.inf)
+    return out[:5]
+
+
+#: Chunk size for the subsets that go round again (second branch, stragglers): one size, so one
+#: compilation whatever the subset's size; small enough that padding wastes little, large enough
+#: to keep dispatch overhead negligible.
+_SUBSET_CHUNK = 2048
 
 
 def _choose_branch(shading, residual, reference: float) -> np.ndarray:
