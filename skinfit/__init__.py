@@ -35,6 +35,7 @@ from .layers import Layer, skin_layers  # noqa: E402
 from .measurements import NistSpectra, read_nist  # noqa: E402
 from .multipole import SlabResponse, slab_response  # noqa: E402
 from .params import PRESET_NAMES, SkinParams, preset, preset_source  # noqa: E402
+from .planning import Plan, Request, plan  # noqa: E402
 from .profiles import captured_reflectance, layered_profile, profile  # noqa: E402
 from .reflectance import diffuse_reflectance, layered_reflectance, stack_transfer  # noqa: E402
 from .tables import ProfileTable, profile_table, read_exr_table, write_table  # noqa: E402
@@ -59,6 +60,8 @@ __all__ = [
     "Layer",
     "NistSpectra",
     "PRESET_NAMES",
+    "Plan",
+    "Request",
     "ProfileTable",
     "SkinParams",
     "SkinfitInputError",
@@ -67,6 +70,7 @@ __all__ = [
     "layered_profile",
     "layered_reflectance",
     "linear_srgb_weights",
+    "plan",
     "preset",
     "preset_source",
     "profile",

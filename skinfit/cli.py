@@ -117,6 +117,25 @@ def _cmd_profiles(args) -> int:
     return 0
 
 
+def _cmd_plan(args) -> int:
+    from .planning import Request, plan
+
+    wavelengths = None if args.wavelengths in (None, "none") else tuple(parse_wavelengths(args.wavelengths).tolist())
+    request = Request(
+        wavelengths_nm=wavelengths,
+        rgb=args.rgb,
+        illuminant=args.illuminant,
+        colour_tolerance=args.colour_tolerance,
+        profiles=args.profiles,
+        pixel_footprint_mm=args.pixel_footprint_mm,
+        max_radius_mm=args.max_radius_mm,
+        derivatives=args.derivatives,
+    )
+    has_params = args.preset or any(getattr(args, n) is not None for n in ("melanin", "melanin_blend", "haemoglobin"))
+    print(plan(request, _params(args) if has_params else None).describe())
+    return 0
+
+
 def _cmd_demo(args) -> int:
     """The main job on the bundled photo: parameter maps, reconstruction, a blush edit, a figure."""
     from importlib.resources import as_file, files
@@ -428,6 +447,22 @@ def build_parser() -> argparse.ArgumentParser:
     render.add_argument("--scale-melanin", type=float, default=1.0)
     render.add_argument("--illuminant", default="D65")
     render.set_defaults(run=_cmd_render_maps)
+
+    planned = sub.add_parser("plan", help="print what a request computes and what it skips")
+    planned.add_argument("--wavelengths", default=None, help="spectral output in nm, START:STOP:STEP or A,B,C (default: none)")
+    planned.add_argument("--rgb", action="store_true", help="linear sRGB output")
+    planned.add_argument("--illuminant", default="D65", help="illuminant of the RGB output (default D65)")
+    planned.add_argument("--colour-tolerance", type=float, default=0.1, help="CIEDE2000 allowed for RGB (default 0.1)")
+    planned.add_argument("--profiles", action="store_true", help="radial profiles")
+    planned.add_argument("--pixel-footprint-mm", type=float, default=None, help="size of a pixel on the skin (mm)")
+    planned.add_argument("--max-radius-mm", type=float, default=20.0, help="largest radius that matters (mm, default 20)")
+    planned.add_argument("--derivatives", action="store_true", help="derivatives with respect to the parameters")
+    group = planned.add_argument_group("skin parameters (optional: with them the planner checks profile widths)")
+    group.add_argument("--preset", choices=PRESET_NAMES)
+    group.add_argument("--melanin", type=float)
+    group.add_argument("--melanin-blend", type=float)
+    group.add_argument("--haemoglobin", type=float)
+    planned.set_defaults(run=_cmd_plan)
 
     demo = sub.add_parser("demo", help="the main job on the bundled face photo: parameter maps, reconstruction, a blush edit")
     demo.add_argument("--out", default="skinfit-demo", help="output folder (default ./skinfit-demo)")

@@ -43,7 +43,7 @@ import optimistix as optx
 from ._batching import map_batches, pad_size
 from ._validate import SkinfitInputError
 from .colorimetry import DEFAULT_ILLUMINANT, delta_e2000, linear_srgb_to_lab, linear_srgb_weights
-from .colour_table import COLOUR_WAVELENGTHS_NM, colour_table, model_rgb, params_rgb, spline_channels, spline_rgb, warm_starts
+from .colour_table import COLOUR_WAVELENGTHS_NM, ColourTable, colour_table, model_rgb, params_rgb, spline_channels, spline_rgb, warm_starts
 
 
 class PixelStatus(enum.IntEnum):
@@ -265,6 +265,7 @@ def fit_pixels(
     saturation_level: float = 0.999,
     chunk_size: int = 32768,
     progress: bool | None = None,
+    table: ColourTable | None = None,
 ) -> dict[str, np.ndarray]:
     """Fit every pixel of a linear sRGB image (h, w, 3) (or pixels (n, 3)).
 
@@ -280,6 +281,8 @@ def fit_pixels(
             just-noticeable difference: the skin model cannot reproduce the pixel).
         black_level, saturation_level: linear values below / at or above which a pixel is
             ``BLACK`` / ``SATURATED``.
+        table: a ``colour_table(...)`` of another resolution (spline nodes, inverse cells) to use
+            instead of the default one; its blend and illuminant must match.
 
     Returns maps of the input's leading shape: ``melanin``, ``melanin_blend``, ``haemoglobin``,
     ``shading``, ``residual_dE2000``, ``status`` (``PixelStatus``) and ``fitted_rgb`` (..., 3).
@@ -293,7 +296,10 @@ def fit_pixels(
     pixels = rgb.reshape(-1, 3)
     status, clean = _screen(pixels, mask, black_level, saturation_level)
 
-    table = colour_table(float(melanin_blend), illuminant)
+    if table is None:
+        table = colour_table(float(melanin_blend), illuminant)
+    elif (table.melanin_blend, table.illuminant) != (float(melanin_blend), illuminant):
+        raise SkinfitInputError("the colour table's melanin_blend and illuminant must match the fit's")
     todo = np.flatnonzero(status == 0)
     n = len(pixels)
     roots, shading, remaining, delta_e, fitted = np.zeros((n, 2)), np.zeros(n), np.zeros(n), np.zeros(n), np.zeros((n, 3))

@@ -112,3 +112,13 @@ def test_fit_spectra_rejects_wavelengths_outside_the_data(tmp_path):
     result = run_cli("fit-spectra", str(path), "--out", str(tmp_path / "p.csv"), "--wavelengths", "400:700:10")
     assert result.returncode == 2 and "outside the data" in result.stderr
     assert len(result.stderr.strip().splitlines()) == 1
+
+
+def test_plan_prints_what_is_computed_and_what_is_skipped(capsys):
+    assert main(["plan", "--wavelengths", "400:700:10"]) == 0
+    text = capsys.readouterr().out
+    assert "spectral reflectance at 31 wavelengths" in text and "profiles: not requested" in text
+    assert main(["plan", "--rgb", "--profiles", "--pixel-footprint-mm", "4", "--preset", "dark"]) == 0
+    text = capsys.readouterr().out
+    assert "RGB (D65) from" in text and "profiles: not needed" in text
+    assert main(["plan"]) == 2

@@ -19,3 +19,9 @@ def test_ci_runs_the_readme_test_command_verbatim():
 
 def test_readme_main_command_runs_the_demo():
     assert _command_lines((ROOT / "README.md").read_text())[0].endswith("skinfit demo")
+
+
+def test_readme_benchmark_tables_are_the_saved_benchmark_output():
+    readme = (ROOT / "README.md").read_text()
+    block = readme.split("<!-- bench:start -->\n", 1)[1].split("\n<!-- bench:end -->", 1)[0]
+    assert block == (ROOT / "benchmarks" / "results" / "pareto" / "summary.md").read_text().strip()
