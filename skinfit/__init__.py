@@ -38,12 +38,14 @@ from .params import PRESET_NAMES, SkinParams, preset, preset_source  # noqa: E40
 from .planning import Plan, Request, plan  # noqa: E402
 from .profiles import captured_reflectance, layered_profile, profile  # noqa: E402
 from .reflectance import diffuse_reflectance, layered_reflectance, stack_transfer  # noqa: E402
+from .surface import brdf, lobe_albedo, reflectance_factor, surface_energy  # noqa: E402
 from .tables import ProfileTable, profile_table, read_exr_table, write_table  # noqa: E402
 
 __all__ = [
     "FitStatus",
     "SolverSettings",
     "SpectralFit",
+    "brdf",
     "captured_reflectance",
     "fit_spectra",
     "HankelQuadrature",
@@ -69,6 +71,7 @@ __all__ = [
     "diffuse_reflectance",
     "layered_profile",
     "layered_reflectance",
+    "lobe_albedo",
     "linear_srgb_weights",
     "plan",
     "preset",
@@ -77,6 +80,7 @@ __all__ = [
     "profile_table",
     "read_exr_table",
     "read_nist",
+    "reflectance_factor",
     "skin_layers",
     "slab_response",
     "spectrum_to_linear_srgb",
@@ -86,6 +90,7 @@ __all__ = [
     "srgb_encode",
     "stack_reflectance",
     "stack_transfer",
+    "surface_energy",
     "write_table",
     "xyz_to_linear_srgb",
     "xyz_weights",
