@@ -255,6 +255,7 @@ def _cmd_fit_spectra(args) -> int:
     start = time.perf_counter()
     fit = fit_spectra(
         grid, target, free=tuple(args.free.split(",")), fixed=fixed, port_radius_mm=args.port_radius_mm,
+        specular_included_deg=args.specular_included_deg,
         adding=args.adding, progress=not args.quiet,
     )
     elapsed = time.perf_counter() - start
@@ -419,6 +420,8 @@ def build_parser() -> argparse.ArgumentParser:
                      "also blood_oxygenation, epidermis_thickness_mm, scattering_scale, specular_offset, calibration_scale")
     fit.add_argument("--fixed", action="append", metavar="NAME=VALUE", help="value of a variable that is not free (repeatable)")
     fit.add_argument("--port-radius-mm", type=float, default=None, help="instrument port radius: light beyond it is lost (default: none)")
+    fit.add_argument("--specular-included-deg", type=float, default=None,
+                     help="the measurement includes the specular part at this incidence (e.g. 8 for d/8 SCI): lets --free include oil")
     fit.add_argument("--adding", choices=ADDING_MODES, default="directional", help="layer adding (default directional)")
     fit.add_argument("--plot", help="PNG of measured against fitted spectra (best and worst fits)")
     fit.add_argument("--quiet", action="store_true", help="no progress bar")

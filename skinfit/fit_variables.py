@@ -13,6 +13,12 @@ The measurement model is
 where ``diffuse`` is the DJ2006 diffuse reflectance (with ``blood_oxygenation``,
 ``epidermis_thickness_mm`` and ``scattering_scale`` as model options), or, with a finite
 measurement port, the part of it that re-emerges within the port (``captured_reflectance``).
+For an instrument that includes the specular reflection (incidence theta, e.g. 8 degrees for
+a d/8 sphere in SCI mode), the surface layer replaces the entry Fresnel factor:
+
+    measured(lambda) = calibration_scale * (rho(theta) + (1 - rho(theta)) R12(lambda) + specular_offset)
+
+with rho = oil x the lobe's directional albedo (``skinfit.surface``), so ``oil`` can be fitted.
 """
 
 from __future__ import annotations
@@ -46,12 +52,16 @@ VARIABLES: dict[str, FitVariable] = {
         0.0, 0.3, 0.0, "additive surface reflection, for hemispherical instruments that include it (~0.028)"
     ),
     "calibration_scale": FitVariable(0.5, 2.0, 1.0, "multiplicative calibration of the instrument"),
+    "oil": FitVariable(
+        0.0, 1.0, 0.3, "DJ2006 surface lobe scale rho_s; only for measurements that include the specular part "
+        "(specular_included_deg); 0.3 in the DJ2006 scenes"
+    ),
 }
 
 CHROMOPHORES = ("melanin", "melanin_blend", "haemoglobin")
 
 #: Where a free variable starts when no table covers it (and it has no fixed value).
-STARTS = {"specular_offset": 0.02}
+STARTS = {"specular_offset": 0.02, "oil": 0.3}
 
 
 def to_unbounded(name: str, value):
@@ -82,6 +92,7 @@ class MeasurementModel:
     fixed: tuple[tuple[str, float], ...]
     port_radius_mm: float | None = None
     adding: str = "directional"
+    specular_included_deg: float | None = None
 
     def values(self, u) -> dict:
         """All variables (free from u, the rest fixed) as a dict of arrays of u's batch shape."""
@@ -116,6 +127,15 @@ class MeasurementModel:
             layers = _skin_stack(params, wavelengths_nm, *options)
             q, weights = energy_kernel(self.port_radius_mm, _PORT_QUADRATURE)
             diffuse = _captured(layers, jnp.asarray(self.port_radius_mm, dtype), q, weights, self.adding)
+        if self.specular_included_deg is not None:
+            from .reflectance import normal_fresnel_reflectance
+            from .surface import lobe_albedo
+
+            theta = np.radians(self.specular_included_deg)
+            direction = jnp.asarray([np.sin(theta), 0.0, np.cos(theta)], dtype)
+            rho = v["oil"][..., None] * lobe_albedo(direction)
+            r12 = diffuse / (1.0 - normal_fresnel_reflectance(ior))  # undo the entry Fresnel factor
+            diffuse = rho + (1.0 - rho) * r12
         return v["calibration_scale"][..., None] * (diffuse + v["specular_offset"][..., None])
 
 

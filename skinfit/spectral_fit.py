@@ -122,6 +122,7 @@ def fit_spectra(
     weights: np.ndarray | None = None,
     port_radius_mm: float | None = None,
     adding: str = "directional",
+    specular_included_deg: float | None = None,
     max_rms: float = 0.1,
     chunk_size: int = 1024,
     settings: SolverSettings = SolverSettings(),
@@ -142,6 +143,9 @@ def fit_spectra(
         port_radius_mm: radius of the instrument port; light re-emerging beyond it is lost
             (None: infinite port).
         adding: ``"directional"`` or ``"symmetric"``.
+        specular_included_deg: the measurement includes the specular reflection of light
+            incident at this angle (degrees; e.g. 8 for a d/8 sphere in SCI mode): the surface
+            (oil) layer enters the model, and ``oil`` can be free (or fixed; default 0.3).
         max_rms: converged fits with a larger RMS residual get ``OUT_OF_MODEL``.
         chunk_size: spectra per compiled batch (memory stays bounded).
         settings: solver tolerances, step limits and warm-start table size.
@@ -158,7 +162,7 @@ def fit_spectra(
     target = np.atleast_2d(target)
     if target.ndim != 2 or target.shape[1] != lam.size:
         raise SkinfitInputError(f"reflectance must have shape (n, {lam.size}) to match the wavelengths, got {np.shape(reflectance)}")
-    model = _measurement_model(free, fixed, port_radius_mm, adding)
+    model = _measurement_model(free, fixed, port_radius_mm, adding, specular_included_deg)
     w = np.ones(lam.size) if weights is None else np.asarray(weights, dtype=float)
     if w.shape != lam.shape or not np.all(np.isfinite(w)) or np.any(w < 0) or not np.any(w > 0):
         raise SkinfitInputError(f"weights must be {lam.size} finite non-negative values, not all zero")
@@ -190,7 +194,7 @@ def fit_spectra(
     return _squeeze(result) if single else result
 
 
-def _measurement_model(free, fixed, port_radius_mm, adding) -> MeasurementModel:
+def _measurement_model(free, fixed, port_radius_mm, adding, specular_included_deg=None) -> MeasurementModel:
     free = tuple(free)
     fixed = dict(fixed or {})
     unknown = [n for n in (*free, *fixed) if n not in VARIABLES]
@@ -200,9 +204,14 @@ def _measurement_model(free, fixed, port_radius_mm, adding) -> MeasurementModel:
         raise SkinfitInputError("nothing to fit: free is empty")
     if len(set(free)) != len(free) or set(free) & set(fixed):
         raise SkinfitInputError("each variable must be either free or fixed, once")
+    surface = specular_included_deg is not None
+    if surface and not (np.isfinite(specular_included_deg) and 0.0 <= specular_included_deg < 89.0):
+        raise SkinfitInputError("specular_included_deg must be an incidence angle in [0, 89) degrees, or None")
+    if not surface and "oil" in (*free, *fixed):
+        raise SkinfitInputError("oil acts only on the specular part: give specular_included_deg (the measurement's incidence angle)")
     values = {}
     for name, var in VARIABLES.items():
-        if name in free:
+        if name in free or (name == "oil" and not surface):
             continue
         value = fixed.get(name, var.default)
         if value is None:
@@ -215,7 +224,10 @@ def _measurement_model(free, fixed, port_radius_mm, adding) -> MeasurementModel:
     if adding not in ("directional", "symmetric"):
         raise SkinfitInputError(f"adding must be 'directional' or 'symmetric', got {adding!r}")
     order = tuple(n for n in VARIABLES if n in free)  # a canonical order: one compilation per set
-    return MeasurementModel(order, tuple(sorted(values.items())), None if port_radius_mm is None else float(port_radius_mm), adding)
+    return MeasurementModel(
+        order, tuple(sorted(values.items())), None if port_radius_mm is None else float(port_radius_mm), adding,
+        None if specular_included_deg is None else float(specular_included_deg),
+    )
 
 
 class _Solver:

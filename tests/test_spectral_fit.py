@@ -111,3 +111,24 @@ def test_unrolled_normal_solve_matches_lapack_and_survives_a_dead_direction():
     jac[:, 2] = 0.0  # a variable the data do not see (a zero Jacobian column on a bound)
     step = np.asarray(solve_normal(jac.T @ jac, jac.T @ rng.normal(size=31)))
     assert np.all(np.isfinite(step)) and step[2] == 0.0
+
+
+def test_oil_is_fitted_where_the_measurement_includes_the_specular_part():
+    wl = np.arange(400.0, 701.0, 10.0)
+    rng = np.random.default_rng(0)
+    n = 24
+    truth = dict(melanin=10 ** rng.uniform(-3, np.log10(0.4), n), melanin_blend=rng.uniform(0, 1, n),
+                 haemoglobin=10 ** rng.uniform(-3, -1, n), oil=rng.uniform(0, 1, n))
+    theta = np.radians(8.0)
+    specular, subsurface = skinfit.surface_energy(skinfit.SkinParams(**truth), wl, np.array([np.sin(theta), 0.0, np.cos(theta)]))
+    measured = np.asarray(specular)[:, None] + np.asarray(subsurface)  # an SCI measurement at 8 degrees
+    fit = skinfit.fit_spectra(wl, measured, free=("melanin", "melanin_blend", "haemoglobin", "oil"),
+                              specular_included_deg=8.0, progress=False)
+    assert np.all(fit.status == skinfit.FitStatus.SUCCESS)
+    for name, values in truth.items():
+        np.testing.assert_allclose(fit.parameters[name], values, atol=1e-8)
+
+
+def test_oil_without_a_specular_measurement_is_a_clear_error():
+    with pytest.raises(skinfit.SkinfitInputError, match="specular_included_deg"):
+        skinfit.fit_spectra(np.arange(400.0, 701.0, 10.0), np.full(31, 0.3), free=("melanin", "oil"), fixed={"melanin_blend": 0.7, "haemoglobin": 0.01})
