@@ -38,6 +38,7 @@ from .params import PRESET_NAMES, SkinParams, preset, preset_source  # noqa: E40
 from .planning import Plan, Request, plan  # noqa: E402
 from .profiles import captured_reflectance, layered_profile, profile  # noqa: E402
 from .reflectance import diffuse_reflectance, layered_reflectance, stack_transfer  # noqa: E402
+from .renderers import RendererProfiles, renderer_profiles, renderer_textures, write_renderer  # noqa: E402
 from .surface import brdf, lobe_albedo, reflectance_factor, surface_energy  # noqa: E402
 from .tables import ProfileTable, profile_table, read_exr_table, write_table  # noqa: E402
 
@@ -80,6 +81,9 @@ __all__ = [
     "profile_table",
     "read_exr_table",
     "read_nist",
+    "RendererProfiles",
+    "renderer_profiles",
+    "renderer_textures",
     "reflectance_factor",
     "skin_layers",
     "slab_response",
@@ -91,6 +95,7 @@ __all__ = [
     "stack_reflectance",
     "stack_transfer",
     "surface_energy",
+    "write_renderer",
     "write_table",
     "xyz_to_linear_srgb",
     "xyz_weights",

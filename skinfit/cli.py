@@ -104,6 +104,18 @@ def _cmd_spectrum(args) -> int:
 def _cmd_profiles(args) -> int:
     from .tables import profile_table, write_table
 
+    if args.format != "table":
+        from .renderers import renderer_profiles, write_renderer
+
+        result = renderer_profiles(_params(args), parse_wavelengths(args.wavelengths), illuminant=args.illuminant,
+                                   label=args.preset or "", **_model_options(args))
+        fmt = "table" if args.format == "renderer-table" else args.format
+        path = write_renderer(result, fmt, args.out)
+        errors = ", ".join(f"{c} {100 * result.gaussians[c]['energy_error']:.2f} %" for c in result.gaussians)
+        print(f"wrote {path} ({args.format}): radii to {result.max_radius_mm:.4g} mm ({100 * 0.997:.1f} % of the energy), "
+              f"sum-of-Gaussians energy error {errors}")
+        return 0
+
     table = profile_table(
         _params(args),
         parse_wavelengths(args.wavelengths),
@@ -133,6 +145,21 @@ def _cmd_plan(args) -> int:
     )
     has_params = args.preset or any(getattr(args, n) is not None for n in ("melanin", "melanin_blend", "haemoglobin"))
     print(plan(request, _params(args) if has_params else None).describe())
+    return 0
+
+
+def _cmd_textures(args) -> int:
+    from .images import read_exr_channels, write_exr
+    from .renderers import renderer_textures
+
+    channels, _ = read_exr_channels(args.maps)
+    missing = [k for k in ("melanin", "haemoglobin") if k not in channels]
+    if missing:
+        raise SkinfitInputError(f"{args.maps}: no {', '.join(missing)} channel (expected the maps EXR of fit-image)")
+    textures = renderer_textures(channels, illuminant=args.illuminant)
+    write_exr(args.out, textures, {"skinfit:units": "albedo: linear sRGB; mfp: mean free path 1/sigma_t' in mm",
+                                   "skinfit:source": str(args.maps)})
+    print(f"wrote {args.out}: albedo.R/G/B (linear sRGB) and mfp.R/G/B (mm)")
     return 0
 
 
@@ -407,7 +434,11 @@ def build_parser() -> argparse.ArgumentParser:
     _add_model_arguments(profiles, wavelengths="400:700:5")
     profiles.add_argument("--radii", default=DEFAULT_RADII, help=f"mm, START:STOP:N, log-spaced if START > 0 (default {DEFAULT_RADII})")
     profiles.add_argument("--illuminant", default="D65", help="illuminant of the RGB profiles (default D65)")
-    profiles.add_argument("--out", required=True, help="output file: .csv, .npz or .exr")
+    profiles.add_argument("--out", required=True, help="output file (table: .csv, .npz or .exr)")
+    profiles.add_argument("--format", default="table", choices=("table", "renderer-table", "gaussians", "burley", "pbrt", "blender", "json"),
+                          help="table: --radii as given (default); renderer-table: radii to 99.7 %% of the energy, normalised; "
+                               "gaussians / burley: fits per RGB channel (JSON); pbrt: pbrt-v4 subsurface material; "
+                               "blender: Principled BSDF values (JSON); json: all fits and the medium")
     profiles.set_defaults(run=_cmd_profiles)
 
     fit = sub.add_parser("fit-spectra", help="fit skin parameters to measured reflectance spectra")
@@ -450,6 +481,12 @@ def build_parser() -> argparse.ArgumentParser:
     render.add_argument("--scale-melanin", type=float, default=1.0)
     render.add_argument("--illuminant", default="D65")
     render.set_defaults(run=_cmd_render_maps)
+
+    textures = sub.add_parser("textures", help="albedo and subsurface-radius textures (EXR) from fitted maps")
+    textures.add_argument("maps", metavar="MAPS.exr")
+    textures.add_argument("--out", required=True, help="EXR to write")
+    textures.add_argument("--illuminant", default="D65")
+    textures.set_defaults(run=_cmd_textures)
 
     planned = sub.add_parser("plan", help="print what a request computes and what it skips")
     planned.add_argument("--wavelengths", default=None, help="spectral output in nm, START:STOP:STEP or A,B,C (default: none)")

@@ -122,3 +122,20 @@ def test_plan_prints_what_is_computed_and_what_is_skipped(capsys):
     text = capsys.readouterr().out
     assert "RGB (D65) from" in text and "profiles: not needed" in text
     assert main(["plan"]) == 2
+
+
+def test_profiles_for_renderers_and_textures(tmp_path, capsys):
+    out = tmp_path / "skin.pbrt"
+    assert main(["profiles", "--preset", "light", "--wavelengths", "400:700:20", "--format", "pbrt", "--out", str(out)]) == 0
+    assert '"string type" "subsurface"' in out.read_text()
+    assert "sum-of-Gaussians energy error" in capsys.readouterr().out
+    from skinfit.images import read_exr_channels, write_exr
+
+    maps = tmp_path / "maps.exr"
+    write_exr(maps, {"melanin": np.full((4, 5), 0.05, np.float32), "haemoglobin": np.full((4, 5), 0.02, np.float32),
+                     "melanin_blend": np.full((4, 5), 0.7, np.float32)})
+    assert main(["textures", str(maps), "--out", str(tmp_path / "tex.exr")]) == 0
+    channels, _ = read_exr_channels(tmp_path / "tex.exr")
+    assert set(channels) == {f"{k}.{c}" for k in ("albedo", "mfp") for c in "RGB"}
+    assert np.all(channels["mfp.R"] > channels["mfp.B"])  # red light travels further
+    assert main(["textures", str(out), "--out", str(tmp_path / "x.exr")]) != 0
