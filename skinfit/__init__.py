@@ -33,6 +33,7 @@ from .image_fit import ImageFit, PixelStatus, fit_image, fit_pixels, render_maps
 from .images import read_linear_rgb  # noqa: E402
 from .layers import Layer, skin_layers  # noqa: E402
 from .measurements import NistSpectra, read_nist  # noqa: E402
+from .monte_carlo import MonteCarloResult, monte_carlo_reflectance  # noqa: E402
 from .multipole import SlabResponse, slab_response  # noqa: E402
 from .params import PRESET_NAMES, SkinParams, preset, preset_source  # noqa: E402
 from .planning import Plan, Request, plan  # noqa: E402
@@ -61,6 +62,8 @@ __all__ = [
     "read_linear_rgb",
     "render_maps",
     "Layer",
+    "MonteCarloResult",
+    "monte_carlo_reflectance",
     "NistSpectra",
     "PRESET_NAMES",
     "Plan",

@@ -90,3 +90,27 @@ def fft_profile(transfer, n=2048, dx=0.02):
     q = np.sqrt(freq[:, None] ** 2 + freq[None, :] ** 2)
     spatial = np.real(np.fft.ifft2(transfer(q))) / dx**2
     return np.arange(n // 2) * dx, spatial[0, : n // 2]
+
+
+def chandrasekhar_h(albedo, mu, nodes=200, iterations=2000):
+    """Chandrasekhar's H-function for isotropic scattering with single-scattering albedo ``albedo``
+    at cosines ``mu``, by iterating 1/H(mu) = sqrt(1 - a) + (a/2) int_0^1 mu' H(mu') / (mu + mu') dmu'
+    on Gauss-Legendre nodes."""
+    x, w = np.polynomial.legendre.leggauss(nodes)
+    nodes_mu, weights = 0.5 * (x + 1), 0.5 * w
+    h = np.ones(nodes)
+    root = np.sqrt(1 - albedo)
+    for _ in range(iterations):
+        new = 1.0 / (root + 0.5 * albedo * np.sum(weights * nodes_mu * h / (nodes_mu[:, None] + nodes_mu), axis=1))
+        if np.max(np.abs(new - h)) < 1e-15:
+            h = new
+            break
+        h = new
+    mu = np.atleast_1d(np.asarray(mu, dtype=float))
+    return 1.0 / (root + 0.5 * albedo * np.sum(weights * nodes_mu * h / (mu[:, None] + nodes_mu), axis=1))
+
+
+def semi_infinite_isotropic_albedo(albedo, mu0=1.0):
+    """Exact diffuse reflectance of an index-matched semi-infinite isotropic medium for a beam at
+    cosine ``mu0`` (Chandrasekhar): 1 - H(mu0) sqrt(1 - a)."""
+    return float(1.0 - chandrasekhar_h(albedo, mu0)[0] * np.sqrt(1 - albedo))
