@@ -15,6 +15,10 @@ from .params import SkinParams
 BLOOD_OXYGENATION = 0.75
 EPIDERMIS_THICKNESS_MM = 0.25
 SKIN_IOR = 1.4
+#: Henyey-Greenstein g of both skin layers for ``method="transport"``: skin scatters forward with
+#: g about 0.8-0.9 in the epidermis and about 0.8 in the dermis (MODEL.md 12, from the tissue-optics
+#: literature summarised by Jacques 2013, "Optical properties of biological tissues: a review").
+SKIN_ANISOTROPY = 0.8
 
 
 class Layer(eqx.Module):

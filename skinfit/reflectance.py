@@ -15,12 +15,13 @@ from collections.abc import Sequence
 import equinox as eqx
 import jax
 import jax.numpy as jnp
+import numpy as np
 from jaxtyping import Array, ArrayLike, Float
 
 from . import chromophores as chrom
 from . import _validate
 from .adding import ADDING_MODES, Adding, stack_reflectance
-from .layers import BLOOD_OXYGENATION, EPIDERMIS_THICKNESS_MM, SKIN_IOR, Layer, skin_layers
+from .layers import BLOOD_OXYGENATION, EPIDERMIS_THICKNESS_MM, SKIN_ANISOTROPY, SKIN_IOR, Layer, skin_layers
 from .multipole import slab_response
 from .params import SkinParams
 
@@ -80,12 +81,17 @@ def _check_stack(layers):
     return layers
 
 
+METHODS = ("diffusion", "transport")
+
+
 def layered_reflectance(
     layers: Sequence[Layer],
     *,
     adding: Adding = "directional",
     ior_above: ArrayLike = 1.0,
     ior_below: ArrayLike = 1.0,
+    method: str = "diffusion",
+    streams: int = 16,
 ) -> Float[Array, "..."]:
     """Diffuse reflectance (1 - F0) R12(0) of a user-defined stack of layers (top first).
 
@@ -93,13 +99,29 @@ def layered_reflectance(
         layers: ``skinfit.Layer`` objects, top first; only the last may be semi-infinite.
         adding: ``"directional"`` (default) or ``"symmetric"`` (DJ2005-literal, for comparison).
         ior_above: refractive index above the stack (air, 1.0).
-        ior_below: refractive index below a finite bottom layer.
+        ior_below: refractive index below a finite bottom layer (diffusion only: with
+            ``method="transport"`` a finite bottom layer exits into a medium of its own index).
+        method: ``"diffusion"`` (DJ2005 multipole, default) or ``"transport"`` (exact 1-D
+            radiative transport by adding-doubling with each layer's ``anisotropy`` g; one
+            refractive index for the stack; ``skinfit.transport``).
+        streams: quadrature directions per hemisphere for ``method="transport"``.
 
     Returns the broadcast shape of the layer fields (for example (..., n_wavelengths)).
     """
     layers = _check_stack(layers)
+    _check_method(method)
+    if method == "transport":
+        from .transport import transport_reflectance
+
+        _validate.check_range("ior_above", ior_above, 1.0, 3.0)
+        return transport_reflectance(layers, ior_above=float(np.asarray(ior_above)), streams=streams)
     _check_options(adding)
     return _layered_reflectance(layers, adding, jnp.asarray(ior_above), jnp.asarray(ior_below))
+
+
+def _check_method(method):
+    if method not in METHODS:
+        raise _validate.SkinfitInputError(f"method must be one of {', '.join(METHODS)}, got {method!r}")
 
 
 @eqx.filter_jit
@@ -117,6 +139,9 @@ def diffuse_reflectance(
     epidermis_thickness_mm: ArrayLike = EPIDERMIS_THICKNESS_MM,
     ior: ArrayLike = SKIN_IOR,
     scattering_scale: ArrayLike = 1.0,
+    method: str = "diffusion",
+    anisotropy: ArrayLike = SKIN_ANISOTROPY,
+    streams: int = 16,
 ) -> Float[Array, "*batch n_wavelengths"]:
     """Diffuse reflectance of skin at normal incidence (specular excluded, entry Fresnel included).
 
@@ -128,12 +153,28 @@ def diffuse_reflectance(
         epidermis_thickness_mm: epidermis thickness in mm (DJ2006: 0.25).
         ior: refractive index of both layers (DJ2006: 1.4).
         scattering_scale: factor on the reduced scattering of both layers (DJ2006: 1).
+        method: ``"diffusion"`` (DJ2006, default) or ``"transport"`` (adding-doubling, exact 1-D
+            transport; ``ior`` must then be one concrete value).
+        anisotropy: Henyey-Greenstein g of both layers for ``method="transport"`` (default 0.8,
+            ``SKIN_ANISOTROPY``); the reduced scattering stays the input.
+        streams: quadrature directions per hemisphere for ``method="transport"``.
 
     Returns:
         Array of shape (..., n_wavelengths): (1 - F0) R12(q = 0).
     """
     lam = _checked_wavelengths(wavelengths_nm)
+    _check_method(method)
     options = _skin_options(adding, blood_oxygenation, epidermis_thickness_mm, ior, scattering_scale, like=(lam, params))
+    if method == "transport":
+        from .transport import transport_reflectance
+
+        if not _validate.is_concrete(ior) or np.ndim(ior) != 0:
+            raise _validate.SkinfitInputError("method='transport' needs one concrete ior for the skin")
+        _validate.check_range("anisotropy", anisotropy, -0.99, 0.99)
+        g = jnp.asarray(anisotropy, lam.dtype)
+        epidermis, dermis = (eqx.tree_at(lambda layer: layer.anisotropy, layer, jnp.broadcast_to(g, jnp.shape(layer.absorption)))
+                             for layer in _skin_stack(params, lam, *options))
+        return transport_reflectance([epidermis, dermis], streams=streams)
     return _skin_reflectance(params, lam, adding, *options)
 
 
