@@ -70,6 +70,8 @@ def profile(
     scattering_scale: ArrayLike = 1.0,
     entry_fresnel: bool = False,
     quadrature: HankelQuadrature = HankelQuadrature(),
+    method: str = "diffusion",
+    anisotropy: ArrayLike = 0.8,
 ) -> Float[Array, "*batch n_wavelengths n_radii"]:
     """Radial diffusion profile of skin, R(r, lambda) in mm^-2.
 
@@ -80,6 +82,11 @@ def profile(
         entry_fresnel: multiply by (1 - F0) so the profile integrates to ``diffuse_reflectance``
             instead of R12(0).
         quadrature: ``HankelQuadrature`` settings (accuracy against cost).
+        method: ``"diffusion"`` (default) or ``"transport"``: the diffusion profile's shape
+            rescaled per wavelength so that it integrates to the transport-exact total
+            (``diffuse_reflectance(..., method="transport")``): "energy-corrected", not a
+            transport-exact shape.
+        anisotropy: Henyey-Greenstein g of both layers for ``method="transport"``.
         Other options as in ``diffuse_reflectance``.
 
     Returns:
@@ -89,7 +96,17 @@ def profile(
     options = _skin_options(adding, blood_oxygenation, epidermis_thickness_mm, ior, scattering_scale, like=(lam, params))
     radii = check_radii(radii_mm)
     q, kernel = inverse_kernel(radii, quadrature)
-    return _skin_profile(params, lam, radii, q, kernel, adding, *options, bool(entry_fresnel))
+    shape = _skin_profile(params, lam, radii, q, kernel, adding, *options, bool(entry_fresnel))
+    if method == "diffusion":
+        return shape
+    if method != "transport":
+        raise SkinfitInputError(f"method must be 'diffusion' or 'transport', got {method!r}")
+    from .reflectance import diffuse_reflectance
+
+    model = dict(adding=adding, blood_oxygenation=blood_oxygenation, epidermis_thickness_mm=epidermis_thickness_mm, ior=ior,
+                 scattering_scale=scattering_scale)
+    exact = diffuse_reflectance(params, lam, method="transport", anisotropy=anisotropy, **model)
+    return shape * (exact / diffuse_reflectance(params, lam, **model))[..., None]
 
 
 @eqx.filter_jit

@@ -174,7 +174,7 @@ def diffuse_reflectance(
         g = jnp.asarray(anisotropy, lam.dtype)
         epidermis, dermis = (eqx.tree_at(lambda layer: layer.anisotropy, layer, jnp.broadcast_to(g, jnp.shape(layer.absorption)))
                              for layer in _skin_stack(params, lam, *options))
-        return transport_reflectance([epidermis, dermis], streams=streams)
+        return transport_reflectance([epidermis, dermis], streams=streams, ior=float(np.asarray(ior)), semi_infinite=True)
     return _skin_reflectance(params, lam, adding, *options)
 
 

@@ -84,3 +84,14 @@ def test_transport_needs_one_concrete_index():
         skinfit.layered_reflectance([slab(0.1, 1.0, 0.2, 0.0, 1.4), slab(0.1, 1.0, float("inf"), 0.0, 1.3)], method="transport")
     with pytest.raises(skinfit.SkinfitInputError, match="method must be"):
         skinfit.diffuse_reflectance(skinfit.preset("light"), [550.0], method="exact")
+
+
+def test_energy_corrected_profiles_integrate_to_the_transport_total():
+    params = skinfit.preset("light")
+    wl = np.array([450.0, 650.0])
+    radii = np.geomspace(1e-5, 200.0, 4000)
+    corrected = np.asarray(skinfit.profile(params, wl, radii, method="transport", entry_fresnel=True))
+    energy = np.trapezoid(2 * np.pi * radii**2 * corrected, np.log(radii), axis=-1)
+    np.testing.assert_allclose(energy, skinfit.diffuse_reflectance(params, wl, method="transport"), rtol=1e-5)
+    shape = np.asarray(skinfit.profile(params, wl, radii, entry_fresnel=True))
+    np.testing.assert_allclose(corrected / corrected[:, :1], shape / shape[:, :1], rtol=1e-10)  # same shape
