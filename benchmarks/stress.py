@@ -96,11 +96,7 @@ def _split(failed: np.ndarray, valid: np.ndarray, name: str) -> dict[str, int]:
 
 
 def _reflectance(fields, lam):
-    params = skinfit.SkinParams.__new__(skinfit.SkinParams)  # fields are traced: no range checks
-    object.__setattr__(params, "melanin", fields["melanin"])
-    object.__setattr__(params, "melanin_blend", fields["melanin_blend"])
-    object.__setattr__(params, "haemoglobin", fields["haemoglobin"])
-    object.__setattr__(params, "oil", jnp.zeros_like(fields["melanin"]))
+    params = skinfit.SkinParams(fields["melanin"], fields["melanin_blend"], fields["haemoglobin"])
     one = jnp.ones_like(fields["melanin"])
     return params, _skin_reflectance(
         params, lam, "directional", fields["blood_oxygenation"], fields["epidermis_thickness_mm"], 1.4 * one, one

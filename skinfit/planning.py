@@ -222,25 +222,16 @@ def evaluate(plan: Plan, params: SkinParams, *, adding: str = "directional", **m
     The plan compiles to one program (cached per plan and adding mode): a reflectance-only plan
     is a single dispatch of the q = 0 model.
     """
-    from .reflectance import _skin_options
+    from .reflectance import SKIN_OPTION_DEFAULTS, _skin_options
 
     if not isinstance(params, SkinParams):
         raise SkinfitInputError("params must be skinfit.SkinParams")
     lam = np.asarray(plan.model_wavelengths_nm)
-    options = _skin_options(adding, **{**_DEFAULT_OPTIONS, **model_options}, like=(jnp.asarray(lam), params))
+    options = _skin_options(adding, **{**SKIN_OPTION_DEFAULTS, **model_options}, like=(jnp.asarray(lam), params))
     outputs = _program(plan, adding)(params, *options)
     radii = None if plan.radii_mm is None else np.asarray(plan.radii_mm)
     return Result(outputs.get("reflectance"), outputs.get("rgb"), radii, outputs.get("profiles"), outputs.get("rgb_profiles"),
                   outputs.get("derivatives"))
-
-
-def _defaults() -> dict:
-    from .layers import BLOOD_OXYGENATION, EPIDERMIS_THICKNESS_MM, SKIN_IOR
-
-    return {"blood_oxygenation": BLOOD_OXYGENATION, "epidermis_thickness_mm": EPIDERMIS_THICKNESS_MM, "ior": SKIN_IOR, "scattering_scale": 1.0}
-
-
-_DEFAULT_OPTIONS = _defaults()
 
 
 @functools.lru_cache(maxsize=32)

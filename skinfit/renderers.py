@@ -49,8 +49,6 @@ from .reflectance import diffuse_reflectance, normal_fresnel_reflectance
 ENERGY_FRACTION = 0.997
 GAUSSIAN_TERMS = 6
 CHANNELS = ("red", "green", "blue")
-#: d'Eon & Luebke's skin variances (mm^2), the starting point of the sum-of-Gaussians fit.
-_GAUSSIAN_STARTS = np.array([0.0064, 0.0484, 0.187, 0.567, 1.99, 7.41])
 _DENSE_RADII = np.geomspace(1e-5, 200.0, 3000)
 
 
@@ -321,11 +319,9 @@ def write_renderer(result: RendererProfiles, fmt: str, path: str | Path) -> Path
     path.parent.mkdir(parents=True, exist_ok=True)
     meta = result.metadata
     if fmt == "table":
-        header = [f"# {line}" for line in json.dumps(meta, indent=1).splitlines()]
-        names = ["radius_mm"] + [f"R_{w:g}nm" for w in result.wavelengths_nm] + ["R_red", "R_green", "R_blue"]
-        data = np.column_stack([result.radii_mm, result.spectral.T, result.rgb.T])
-        body = "\n".join(",".join(f"{v:.10g}" for v in row) for row in data)
-        path.write_text("\n".join(header + [",".join(names), body]) + "\n", encoding="utf-8")
+        from .tables import ProfileTable, _write_csv
+
+        _write_csv(ProfileTable(result.wavelengths_nm, result.radii_mm, result.spectral, result.rgb, result.reflectance, meta), path)
     elif fmt == "pbrt":
         path.write_text(pbrt_v4_material(result), encoding="utf-8")
     elif fmt in ("gaussians", "burley", "blender", "json"):

@@ -50,12 +50,9 @@ _TINY = 1e-12
 
 def fresnel_dielectric(cos_incidence: ArrayLike, ior: ArrayLike) -> Float[Array, "..."]:
     """Unpolarised Fresnel reflectance from air into a dielectric of index ``ior`` (cosine >= 0)."""
-    c = jnp.clip(jnp.asarray(cos_incidence), 0.0, 1.0)
-    g2 = jnp.asarray(ior) ** 2 - 1.0 + c * c  # > 0 for ior > 1
-    g = jnp.sqrt(jnp.maximum(g2, _TINY))
-    a = (g - c) / (g + c)
-    b = (c * (g + c) - 1.0) / (c * (g - c) + 1.0)
-    return 0.5 * a * a * (1.0 + b * b)
+    from .reflectance import fresnel_reflectance
+
+    return fresnel_reflectance(cos_incidence, 1.0, ior)
 
 
 def _unit_lobe(wi, wo, roughness, ior):
@@ -152,9 +149,14 @@ def _check_directions(name, value):
     return jnp.asarray(value)
 
 
-def _check_surface(roughness, ior):
+def _checked(wavelengths_nm, roughness, surface_ior, **directions):
+    """Validated wavelengths and directions (in the order given) of a surface-layer call."""
+    from .reflectance import _checked_wavelengths
+
+    lam = _checked_wavelengths(wavelengths_nm)
     _validate.check_range("roughness", roughness, 1e-3, 2.0)
-    _validate.check_range("surface_ior", ior, 1.0 + 1e-6, 3.0)
+    _validate.check_range("surface_ior", surface_ior, 1.0 + 1e-6, 3.0)
+    return lam, *(_check_directions(name, value) for name, value in directions.items())
 
 
 def brdf(
@@ -171,11 +173,7 @@ def brdf(
     ``params.oil`` scales the lobe; ``wi``, ``wo`` (..., 3) unit vectors, normal +z, both pointing
     away from the surface; they broadcast with the parameters.
     """
-    from .reflectance import _checked_wavelengths
-
-    lam = _checked_wavelengths(wavelengths_nm)
-    wi, wo = _check_directions("wi", wi), _check_directions("wo", wo)
-    _check_surface(roughness, surface_ior)
+    lam, wi, wo = _checked(wavelengths_nm, roughness, surface_ior, wi=wi, wo=wo)
     dtype = jnp.result_type(lam, params.oil, wi, wo)
     lobe = _unit_lobe(wi.astype(dtype), wo.astype(dtype), jnp.asarray(roughness, dtype), jnp.asarray(surface_ior, dtype))
     value = jnp.asarray(params.oil, dtype) * lobe
@@ -203,11 +201,9 @@ def reflectance_factor(
     (..., n_wavelengths); the skin-model options as in ``diffuse_reflectance``. ``roughness`` and
     ``surface_ior`` are scalars here (rho is tabulated over 257 angles per call and interpolated).
     """
-    from .reflectance import _checked_wavelengths, _skin_options
+    from .reflectance import _skin_options
 
-    lam = _checked_wavelengths(wavelengths_nm)
-    wi, wo = _check_directions("wi", wi), _check_directions("wo", wo)
-    _check_surface(roughness, surface_ior)
+    lam, wi, wo = _checked(wavelengths_nm, roughness, surface_ior, wi=wi, wo=wo)
     if np.ndim(roughness) or np.ndim(surface_ior):
         raise _validate.SkinfitInputError("reflectance_factor takes a scalar roughness and surface_ior")
     options = _skin_options(adding, blood_oxygenation, epidermis_thickness_mm, ior, scattering_scale, like=(lam, params))
@@ -244,14 +240,11 @@ def surface_energy(
 ) -> tuple[Float[Array, "..."], Float[Array, "*batch n_wavelengths"]]:
     """(specular albedo rho(wi), subsurface albedo (1 - rho(wi)) R12(0)) for incidence ``wi``:
     the energy the patch reflects, split by path; their sum never exceeds 1."""
-    from .reflectance import _checked_wavelengths, _skin_options, _skin_stack, stack_transfer
+    from .reflectance import SKIN_OPTION_DEFAULTS, _skin_options, _skin_stack, stack_transfer
 
-    lam = _checked_wavelengths(wavelengths_nm)
-    wi = _check_directions("wi", wi)
-    _check_surface(roughness, surface_ior)
+    lam, wi = _checked(wavelengths_nm, roughness, surface_ior, wi=wi)
     adding = model_options.pop("adding", "directional")
-    defaults = {"blood_oxygenation": BLOOD_OXYGENATION, "epidermis_thickness_mm": EPIDERMIS_THICKNESS_MM, "ior": SKIN_IOR, "scattering_scale": 1.0}
-    options = _skin_options(adding, **{**defaults, **model_options}, like=(lam, params))
+    options = _skin_options(adding, **{**SKIN_OPTION_DEFAULTS, **model_options}, like=(lam, params))
     r12 = stack_transfer(_skin_stack(params, lam, *options), 0.0, adding=adding)
     dtype = r12.dtype
     rho = jnp.asarray(params.oil, dtype) * lobe_albedo(wi.astype(dtype), jnp.asarray(roughness, dtype), jnp.asarray(surface_ior, dtype))

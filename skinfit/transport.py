@@ -34,6 +34,8 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from .reflectance import fresnel_reflectance
+
 STREAMS = 16
 _FINITE_DOUBLINGS = 12
 _SEMI_INFINITE_START = 2.0**-10
@@ -114,17 +116,6 @@ def _extrapolated(gamma_r, gamma_t, depth, doublings):
     return tuple(2.0 * b - a for a, b in zip(coarse, fine))
 
 
-def _fresnel(cos_inside, n_inside, n_outside):
-    """Unpolarised Fresnel reflectance for light inside (index n_inside) meeting the face."""
-    c = cos_inside
-    sin_t2 = (n_inside / n_outside) ** 2 * (1.0 - c * c)
-    total = sin_t2 >= 1.0
-    cos_t = jnp.sqrt(jnp.where(total, 0.5, 1.0 - sin_t2))
-    rs = ((n_inside * c - n_outside * cos_t) / (n_inside * c + n_outside * cos_t)) ** 2
-    rp = ((n_inside * cos_t - n_outside * c) / (n_inside * cos_t + n_outside * c)) ** 2
-    return jnp.where(total, 1.0, 0.5 * (rs + rp))
-
-
 def _semi_infinite(gamma_r, gamma_t):
     """R of a layer doubled to 2^26 optical depths, Richardson between the two start depths."""
     coarse = _layer(gamma_r, gamma_t, _SEMI_INFINITE_START, _SEMI_INFINITE_DOUBLINGS)[0]
@@ -167,7 +158,7 @@ def stack_reflectance_transport(absorption, reduced_scattering, thickness, aniso
         below = r if below is None else r + t @ jnp.linalg.solve(eye - below @ r, below @ t)
 
     mu = jnp.asarray(_quadrature(streams, cosine)[0], dtype)
-    fresnel = _fresnel(mu, jnp.asarray(ior, dtype), jnp.asarray(ior_above, dtype)).at[-1].set(0.0)  # nothing travels up along the beam
+    fresnel = fresnel_reflectance(mu, jnp.asarray(ior, dtype), jnp.asarray(ior_above, dtype)).at[-1].set(0.0)  # nothing travels up along the beam
     entry = 1.0 - ((ior - ior_above) / (ior + ior_above)) ** 2
     upward = jnp.linalg.solve(eye - below * fresnel[None, :], below[:, -1] * entry)
     return jnp.sum((1.0 - fresnel) * upward).astype(out_dtype)
