@@ -10,7 +10,8 @@ The measurement model is
 
     measured(lambda) = calibration_scale * (diffuse(lambda) + specular_offset)
 
-where ``diffuse`` is the DJ2006 diffuse reflectance (with ``blood_oxygenation``,
+where ``diffuse`` is the DJ2006 diffuse reflectance (diffusion, or exact transport with
+``method="transport"``; with ``blood_oxygenation``,
 ``epidermis_thickness_mm`` and ``scattering_scale`` as model options), or, with a finite
 measurement port, the part of it that re-emerges within the port (``captured_reflectance``).
 For an instrument that includes the specular reflection (incidence theta, e.g. 8 degrees for
@@ -28,6 +29,7 @@ import dataclasses
 import jax.numpy as jnp
 import numpy as np
 
+from .layers import SKIN_ANISOTROPY
 from .params import SkinParams
 
 
@@ -85,7 +87,10 @@ class MeasurementModel:
         free: names of the free variables, in the order of the unbounded vector u.
         fixed: values of the other variables.
         port_radius_mm: radius of the measurement port, or None for an infinite port.
-        adding: layer adding mode.
+        adding: layer adding mode (diffusion).
+        specular_included_deg: incidence angle of a measurement that includes the specular part.
+        method: forward model, ``"diffusion"`` (DJ2006) or ``"transport"`` (adding-doubling).
+        anisotropy: Henyey-Greenstein g of both layers for ``"transport"``.
     """
 
     free: tuple[str, ...]
@@ -93,6 +98,12 @@ class MeasurementModel:
     port_radius_mm: float | None = None
     adding: str = "directional"
     specular_included_deg: float | None = None
+    method: str = "diffusion"
+    anisotropy: float = SKIN_ANISOTROPY
+
+    def with_method(self, method: str) -> "MeasurementModel":
+        """The same measurement through another forward model (``"diffusion"`` or ``"transport"``)."""
+        return dataclasses.replace(self, method=method)
 
     def values(self, u) -> dict:
         """All variables (free from u, the rest fixed) as a dict of arrays of u's batch shape."""
@@ -121,12 +132,22 @@ class MeasurementModel:
         params = SkinParams(v["melanin"], v["melanin_blend"], v["haemoglobin"])
         ior = jnp.asarray(SKIN_IOR, dtype)
         options = (v["blood_oxygenation"], v["epidermis_thickness_mm"], ior, v["scattering_scale"])
-        if self.port_radius_mm is None:
+        if self.port_radius_mm is None or self.method == "transport":
             diffuse = _skin_reflectance(params, wavelengths_nm, self.adding, *options)
-        else:
+        if self.method == "transport":
+            from .reflectance import _skin_reflectance_transport
+
+            exact = _skin_reflectance_transport(params, wavelengths_nm, *options, anisotropy=jnp.asarray(self.anisotropy, dtype),
+                                                streams=16, ior_value=SKIN_IOR)
+        if self.port_radius_mm is not None:
             layers = _skin_stack(params, wavelengths_nm, *options)
             q, weights = energy_kernel(self.port_radius_mm, _PORT_QUADRATURE)
-            diffuse = _captured(layers, jnp.asarray(self.port_radius_mm, dtype), q, weights, self.adding)
+            captured = _captured(layers, jnp.asarray(self.port_radius_mm, dtype), q, weights, self.adding)
+            # transport: the energy-corrected profile (diffusion's shape, transport's total), as
+            # ``profile(method="transport")``: the captured fraction is diffusion's
+            diffuse = captured if self.method != "transport" else exact * captured / diffuse
+        elif self.method == "transport":
+            diffuse = exact
         if self.specular_included_deg is not None:
             from .reflectance import normal_fresnel_reflectance
             from .surface import lobe_albedo

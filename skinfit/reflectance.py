@@ -188,16 +188,23 @@ def diffuse_reflectance(
     _check_method(method)
     options = _skin_options(adding, blood_oxygenation, epidermis_thickness_mm, ior, scattering_scale, like=(lam, params))
     if method == "transport":
-        from .transport import transport_reflectance
-
         if not _validate.is_concrete(ior) or np.ndim(ior) != 0:
             raise _validate.SkinfitInputError("method='transport' needs one concrete ior for the skin")
         _validate.check_range("anisotropy", anisotropy, -0.99, 0.99)
-        g = jnp.asarray(anisotropy, lam.dtype)
-        epidermis, dermis = (eqx.tree_at(lambda layer: layer.anisotropy, layer, jnp.broadcast_to(g, jnp.shape(layer.absorption)))
-                             for layer in _skin_stack(params, lam, *options))
-        return transport_reflectance([epidermis, dermis], streams=streams, ior=float(np.asarray(ior)), semi_infinite=True)
+        return _skin_reflectance_transport(params, lam, *options, anisotropy=jnp.asarray(anisotropy, lam.dtype),
+                                           streams=int(streams), ior_value=float(np.asarray(ior)))
     return _skin_reflectance(params, lam, adding, *options)
+
+
+def _skin_reflectance_transport(params, lam, blood_oxygenation, epidermis_thickness_mm, ior, scattering_scale, *,
+                                anisotropy, streams: int, ior_value: float):
+    """``diffuse_reflectance(..., method="transport")`` after validation (usable under jit and in
+    fits: the options may be traced, the index ``ior_value`` is concrete)."""
+    from .transport import transport_reflectance
+
+    epidermis, dermis = (eqx.tree_at(lambda layer: layer.anisotropy, layer, jnp.broadcast_to(anisotropy, jnp.shape(layer.absorption)))
+                         for layer in _skin_stack(params, lam, blood_oxygenation, epidermis_thickness_mm, ior, scattering_scale))
+    return transport_reflectance([epidermis, dermis], streams=streams, ior=ior_value, semi_infinite=True)
 
 
 def _skin_stack(params, lam, blood_oxygenation, epidermis_thickness_mm, ior, scattering_scale):

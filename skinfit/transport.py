@@ -93,12 +93,33 @@ def _generators(albedo, anisotropy, streams, critical_cosine):
     return gamma_r, gamma_t, depth_factor
 
 
+def _solve(a, b):
+    """a^-1 b by Gauss-Jordan elimination without pivoting, in plain array operations.
+
+    Every system here is I - M with M a product of reflection operators, whose columns (photon
+    probabilities) sum to less than one: column diagonally dominant, so elimination without
+    pivoting is stable. Unlike a LAPACK solve it is, under vmap, one batched array program; and
+    XLA's CPU runtime was seen to hang (idle, every worker waiting) on LAPACK solves inside the
+    doubling loops of batched transport Jacobians."""
+    n = a.shape[-1]
+    augmented = jnp.concatenate([a, b], axis=-1)
+
+    def eliminate(k, m):
+        row = jax.lax.dynamic_index_in_dim(m, k, axis=0, keepdims=False)
+        row = row / row[k]
+        column = jax.lax.dynamic_index_in_dim(m, k, axis=1, keepdims=False)
+        m = m - column[:, None] * row[None, :]
+        return jax.lax.dynamic_update_index_in_dim(m, row, k, axis=0)
+
+    return jax.lax.fori_loop(0, n, eliminate, augmented)[:, n:]
+
+
 def _double(r, t, times):
     eye = jnp.eye(r.shape[-1], dtype=r.dtype)
 
     def step(_, rt):
         r, t = rt
-        x = jnp.linalg.solve(eye - r @ r, t)  # (I - R R)^-1 T
+        x = _solve(eye - r @ r, t)  # (I - R R)^-1 T
         return r + t @ r @ x, t @ x
 
     return jax.lax.fori_loop(0, times, step, (r, t))
@@ -155,12 +176,12 @@ def stack_reflectance_transport(absorption, reduced_scattering, thickness, aniso
             continue
         depth = extinction[k] * jnp.where(jnp.isfinite(thickness[k]), thickness[k], 1.0) * depth_factor
         r, t = _extrapolated(gamma_r, gamma_t, depth, _FINITE_DOUBLINGS)
-        below = r if below is None else r + t @ jnp.linalg.solve(eye - below @ r, below @ t)
+        below = r if below is None else r + t @ _solve(eye - below @ r, below @ t)
 
     mu = jnp.asarray(_quadrature(streams, cosine)[0], dtype)
     fresnel = fresnel_reflectance(mu, jnp.asarray(ior, dtype), jnp.asarray(ior_above, dtype)).at[-1].set(0.0)  # nothing travels up along the beam
     entry = 1.0 - ((ior - ior_above) / (ior + ior_above)) ** 2
-    upward = jnp.linalg.solve(eye - below * fresnel[None, :], below[:, -1] * entry)
+    upward = _solve(eye - below * fresnel[None, :], (below[:, -1] * entry)[:, None])[:, 0]
     return jnp.sum((1.0 - fresnel) * upward).astype(out_dtype)
 
 
