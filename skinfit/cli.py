@@ -283,7 +283,7 @@ def _cmd_fit_spectra(args) -> int:
     fit = fit_spectra(
         grid, target, free=tuple(args.free.split(",")), fixed=fixed, port_radius_mm=args.port_radius_mm,
         specular_included_deg=args.specular_included_deg,
-        adding=args.adding, progress=not args.quiet,
+        adding=args.adding, method=args.method, progress=not args.quiet,
     )
     elapsed = time.perf_counter() - start
     columns = list(fit.parameters)
@@ -316,7 +316,7 @@ def _cmd_fit_image(args) -> int:
     white_balance = _white_balance(args.white_balance)
     options = dict(
         melanin_blend=args.melanin_blend, fit_blend=args.fit_blend, white_balance=white_balance, input_space=args.input_space,
-        mask=args.mask, illuminant=args.illuminant, max_delta_e=args.max_delta_e, exact_steps=args.exact_steps,
+        mask=args.mask, illuminant=args.illuminant, max_delta_e=args.max_delta_e, exact_steps=args.exact_steps, method=args.method,
         progress=False if args.quiet else None,
     )
     if args.dask:
@@ -454,6 +454,8 @@ def build_parser() -> argparse.ArgumentParser:
     fit.add_argument("--specular-included-deg", type=float, default=None,
                      help="the measurement includes the specular part at this incidence (e.g. 8 for d/8 SCI): lets --free include oil")
     fit.add_argument("--adding", choices=ADDING_MODES, default="directional", help="layer adding (default directional)")
+    fit.add_argument("--method", choices=("diffusion", "transport"), default="diffusion",
+                     help="forward model: DJ2006 diffusion (default) or exact 1-D transport (adding-doubling; ~100x slower on a GPU, more on a CPU)")
     fit.add_argument("--plot", help="PNG of measured against fitted spectra (best and worst fits)")
     fit.add_argument("--quiet", action="store_true", help="no progress bar")
     fit.set_defaults(run=_cmd_fit_spectra)
@@ -466,6 +468,8 @@ def build_parser() -> argparse.ArgumentParser:
     image.add_argument("--white-balance", default="none", help="none (albedo maps, default), auto (fit camera gains once per image) or R,G,B")
     image.add_argument("--max-delta-e", type=float, default=1.0, help="CIEDE2000 above which a pixel is out of model (default 1)")
     image.add_argument("--exact-steps", type=int, default=0, help="Gauss-Newton steps on the exact model after the spline fit")
+    image.add_argument("--method", choices=("diffusion", "transport"), default="diffusion",
+                       help="forward model: DJ2006 diffusion (default) or exact 1-D transport (its colour table takes ~1-2 min on a laptop CPU)")
     image.add_argument("--dask", metavar="ADDRESS", default=None, help="run the images as tasks on this Dask scheduler")
     image.add_argument("--quiet", action="store_true", help="no progress bar")
     image.add_argument("--input-space", default=None, help="srgb, linear or a colour-science RGB colourspace name")

@@ -46,6 +46,10 @@ HAEMOGLOBIN_MAX = 0.15
 #: model is poor near the fold, where the Jacobian is near singular.
 _AFFINE_REACH = 0.3
 
+#: Spline nodes per axis of a transport table, whose node derivatives come from an interpolating
+#: spline (error against exact transport measured in tests/test_colour_table.py).
+TRANSPORT_NODES = 33
+
 #: Wavelengths of the colour integral (nm).
 COLOUR_WAVELENGTHS_NM = np.arange(400.0, 701.0, 10.0)
 
@@ -76,6 +80,7 @@ class ColourTable:
     inverse_chroma: np.ndarray  # (inverse_cells, inverse_cells, 2 branches, 2)
     inverse_jacobian: np.ndarray  # (inverse_cells, inverse_cells, 2 branches, 2 roots, 2 chroma)
     inverse_edges: tuple[np.ndarray, np.ndarray]
+    method: str = "diffusion"
 
     def warm_starts(self, pixels: np.ndarray) -> np.ndarray:
         """Both warm starts (n, 2 branches, 2) for linear sRGB pixels (n, 3) (see ``warm_starts``)."""
@@ -88,10 +93,10 @@ class ColourTable:
         return tuple(jnp.asarray(a) for a in arrays)
 
     def model_arguments(self):
-        """(melanin_blend, melanin_max, haemoglobin_max, weights): what ``model_rgb`` needs after
-        the roots to evaluate the exact model this table interpolates."""
+        """(melanin_blend, melanin_max, haemoglobin_max, weights, method): what ``model_rgb``
+        needs after the roots to evaluate the exact model this table interpolates."""
         weights = jnp.asarray(linear_srgb_weights(COLOUR_WAVELENGTHS_NM, self.illuminant))
-        return self.melanin_blend, self.melanin_max, self.haemoglobin_max, weights
+        return self.melanin_blend, self.melanin_max, self.haemoglobin_max, weights, self.method
 
     def parameters(self, roots):
         """(C_m, C_h) of normalised roots (..., 2)."""
@@ -105,19 +110,31 @@ def colour_table(
     illuminant: str = DEFAULT_ILLUMINANT,
     melanin_max: float = MELANIN_MAX,
     haemoglobin_max: float = HAEMOGLOBIN_MAX,
-    nodes: int = 129,
+    nodes: int | None = None,
     inverse_cells: int = 512,
+    method: str = "diffusion",
 ) -> ColourTable:
-    """Build (and cache per blend, illuminant, box and size) the colour spline and its inverse."""
+    """Build (and cache per blend, illuminant, box, size and method) the colour spline and its inverse.
+
+    ``nodes`` per axis default to 129 for ``method="diffusion"`` and ``TRANSPORT_NODES`` for
+    ``method="transport"`` (adding-doubling, 100x (GPU) to thousands of times (CPU) the cost
+    per spectrum: measured 4 s on an H100, 1-2 min on a 2-core CPU; once per process)."""
     from scipy.spatial import cKDTree
 
     if not 0.0 <= melanin_blend <= 1.0:
         raise SkinfitInputError(f"melanin_blend must be within [0, 1], got {melanin_blend}")
+    if method not in ("diffusion", "transport"):
+        raise SkinfitInputError(f"method must be 'diffusion' or 'transport', got {method!r}")
+    if nodes is None:
+        nodes = 129 if method == "diffusion" else TRANSPORT_NODES
     grid = np.linspace(0.0, 1.0, nodes)
     u, v = (a.ravel() for a in np.meshgrid(grid, grid, indexing="ij"))
     model = (float(melanin_blend), float(melanin_max), float(haemoglobin_max))
     weights = jnp.asarray(linear_srgb_weights(COLOUR_WAVELENGTHS_NM, illuminant))
-    value, du, dv, duv = (np.asarray(a).reshape(nodes, nodes, 3) for a in _node_data(jnp.asarray(u), jnp.asarray(v), *model, weights))
+    if method == "diffusion":
+        value, du, dv, duv = (np.asarray(a).reshape(nodes, nodes, 3) for a in _node_data(jnp.asarray(u), jnp.asarray(v), *model, weights, method))
+    else:
+        value, du, dv, duv = _interpolated_node_data(grid, np.stack([u, v], axis=-1), *model, weights, method)
     h = 1.0 / (nodes - 1)  # derivatives per unit root -> per unit cell coordinate
     coefficients = _patch_coefficients(value, h * du, h * dv, h * h * duv)
 
@@ -147,7 +164,7 @@ def colour_table(
     inverse = [a[starts].astype(np.float32) for a in (fine_roots, chroma, _inverse_2x2(chroma_jacobian))]
     inner_edges = (edges[0, 1:-1].copy(), edges[1, 1:-1].copy())
     blend, c_m_max, c_h_max = model
-    return ColourTable(blend, illuminant, c_m_max, c_h_max, nodes, coefficients, *inverse, inner_edges)
+    return ColourTable(blend, illuminant, c_m_max, c_h_max, nodes, coefficients, *inverse, inner_edges, method)
 
 
 @jax.jit
@@ -167,31 +184,31 @@ def warm_starts(inverse, pixels):
     return jnp.clip(roots[a, b] + step, 0.0, 1.0)
 
 
-@jax.jit
-def params_rgb(columns, weights):
-    """Linear sRGB (shading 1) of the forward model for (C_m, beta_m, C_h) rows (n, 3), with
-    ``weights`` (3, wavelengths) from ``linear_srgb_weights(COLOUR_WAVELENGTHS_NM, illuminant)``."""
+@functools.partial(jax.jit, static_argnames="method")
+def params_rgb(columns, weights, method="diffusion"):
+    """Linear sRGB (shading 1) of the forward model (``method``) for (C_m, beta_m, C_h) rows
+    (n, 3), with ``weights`` (3, wavelengths) from ``linear_srgb_weights(COLOUR_WAVELENGTHS_NM, illuminant)``."""
     params = SkinParams(columns[:, 0], columns[:, 1], columns[:, 2])
-    return diffuse_reflectance(params, COLOUR_WAVELENGTHS_NM) @ weights.T
+    return diffuse_reflectance(params, COLOUR_WAVELENGTHS_NM, method=method) @ weights.T
 
 
-@jax.jit
-def model_rgb(roots, melanin_blend, melanin_max, haemoglobin_max, weights):
+@functools.partial(jax.jit, static_argnames="method")
+def model_rgb(roots, melanin_blend, melanin_max, haemoglobin_max, weights, method="diffusion"):
     """Linear sRGB (shading 1) of the forward model at normalised roots (n, 2) in [0, 1].
 
     Not clipped here: a clip's derivative at the box edge is 1/2 in JAX, which would corrupt the
     spline's edge nodes."""
     c_m = melanin_max * roots[:, 0] ** 2
     c_h = haemoglobin_max * roots[:, 1] ** 2
-    return params_rgb(jnp.stack([c_m, jnp.full_like(c_m, melanin_blend), c_h], axis=-1), weights)
+    return params_rgb(jnp.stack([c_m, jnp.full_like(c_m, melanin_blend), c_h], axis=-1), weights, method)
 
 
-@jax.jit
-def _node_data(u, v, melanin_blend, melanin_max, haemoglobin_max, weights):
+@functools.partial(jax.jit, static_argnames="method")
+def _node_data(u, v, melanin_blend, melanin_max, haemoglobin_max, weights, method):
     """Colour, d/du, d/dv and d2/dudv at nodes (n,), each (n, 3), by forward-mode autodiff."""
 
     def colour(u, v):
-        return model_rgb(jnp.stack([u, v])[None], melanin_blend, melanin_max, haemoglobin_max, weights)[0]
+        return model_rgb(jnp.stack([u, v])[None], melanin_blend, melanin_max, haemoglobin_max, weights, method)[0]
 
     def with_du(u, v):
         return jax.jvp(lambda x: colour(x, v), (u,), (jnp.ones_like(u),))
@@ -201,6 +218,23 @@ def _node_data(u, v, melanin_blend, melanin_max, haemoglobin_max, weights):
         return value, du, dv, duv
 
     return jax.vmap(node)(u, v)
+
+
+def _interpolated_node_data(grid, roots, melanin_blend, melanin_max, haemoglobin_max, weights, method):
+    """Colour at the nodes from the model, derivatives from the bicubic interpolating spline
+    through them (not-a-knot, SciPy): for the transport model, whose nested forward-mode
+    derivatives cost ~11 spectra per node against one for a value (measured)."""
+    from scipy.interpolate import RectBivariateSpline
+
+    from ._batching import map_batches
+
+    evaluate = lambda r: (model_rgb(r, melanin_blend, melanin_max, haemoglobin_max, weights, method),)  # noqa: E731
+    (value,) = map_batches(evaluate, (roots,), min(len(roots), 256))
+    n = len(grid)
+    value = value.reshape(n, n, 3)
+    splines = [RectBivariateSpline(grid, grid, value[..., c], kx=3, ky=3, s=0) for c in range(3)]
+    derivative = lambda dx, dy: np.stack([spl(grid, grid, dx=dx, dy=dy) for spl in splines], axis=-1)  # noqa: E731
+    return value, derivative(1, 0), derivative(0, 1), derivative(1, 1)
 
 
 def _patch_coefficients(value, du, dv, duv) -> np.ndarray:

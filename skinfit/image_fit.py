@@ -31,6 +31,7 @@ Pixels that cannot be fitted get a status code and zeros, never NaN.
 from __future__ import annotations
 
 import dataclasses
+import functools
 import enum
 from typing import NamedTuple
 
@@ -68,11 +69,11 @@ def _spline_colour(coefficients):
     return colour
 
 
-def _exact_colour(melanin_blend, melanin_max, haemoglobin_max, weights):
+def _exact_colour(melanin_blend, melanin_max, haemoglobin_max, weights, method="diffusion"):
     """The exact model's colour at roots u, v (n,), in the layout of ``_spline_colour``."""
 
     def one(roots):
-        colour = lambda r: model_rgb(r[None], melanin_blend, melanin_max, haemoglobin_max, weights)[0]  # noqa: E731
+        colour = lambda r: model_rgb(r[None], melanin_blend, melanin_max, haemoglobin_max, weights, method)[0]  # noqa: E731
         value, du = jax.jvp(colour, (roots,), (jnp.array([1.0, 0.0], roots.dtype),))
         dv = jax.jvp(colour, (roots,), (jnp.array([0.0, 1.0], roots.dtype),))[1]
         return value, du, dv
@@ -217,9 +218,13 @@ def _first_pass_chunk(coefficients, inverse, target, steps):
     return (*solved, starts[:, 1], jnp.any(starts[:, 0] != starts[:, 1], axis=-1))
 
 
-@jax.jit
-def _exact_chunk(exact_model, roots, target, steps):
-    return _gauss_newton(_exact_colour(*exact_model), roots, target, jnp.full(len(roots), _INITIAL_DAMPING, roots.dtype), steps)
+#: Pixels per chunk of the exact transport polish (measured: ~2.2 MB of device memory per pixel).
+_TRANSPORT_CHUNK = 1024
+
+
+@functools.partial(jax.jit, static_argnames="method")
+def _exact_chunk(exact_model, roots, target, steps, method):
+    return _gauss_newton(_exact_colour(*exact_model, method), roots, target, jnp.full(len(roots), _INITIAL_DAMPING, roots.dtype), steps)
 
 
 @jax.jit
@@ -266,6 +271,7 @@ def fit_pixels(
     chunk_size: int = 32768,
     progress: bool | None = None,
     table: ColourTable | None = None,
+    method: str = "diffusion",
 ) -> dict[str, np.ndarray]:
     """Fit every pixel of a linear sRGB image (h, w, 3) (or pixels (n, 3)).
 
@@ -282,7 +288,11 @@ def fit_pixels(
         black_level, saturation_level: linear values below / at or above which a pixel is
             ``BLACK`` / ``SATURATED``.
         table: a ``colour_table(...)`` of another resolution (spline nodes, inverse cells) to use
-            instead of the default one; its blend and illuminant must match.
+            instead of the default one; its blend, illuminant and method must match.
+        method: forward model, ``"diffusion"`` (DJ2006, default) or ``"transport"``
+            (adding-doubling): the colour spline is built with it (``colour_table(method=...)``,
+            33 x 33 nodes: minutes on a laptop CPU, once per process and blend), and so are the
+            ``exact_steps``.
 
     Returns maps of the input's leading shape: ``melanin``, ``melanin_blend``, ``haemoglobin``,
     ``shading``, ``residual_dE2000``, ``status`` (``PixelStatus``) and ``fitted_rgb`` (..., 3).
@@ -297,9 +307,9 @@ def fit_pixels(
     status, clean = _screen(pixels, mask, black_level, saturation_level)
 
     if table is None:
-        table = colour_table(float(melanin_blend), illuminant)
-    elif (table.melanin_blend, table.illuminant) != (float(melanin_blend), illuminant):
-        raise SkinfitInputError("the colour table's melanin_blend and illuminant must match the fit's")
+        table = colour_table(float(melanin_blend), illuminant, method=method)
+    elif (table.melanin_blend, table.illuminant, table.method) != (float(melanin_blend), illuminant, method):
+        raise SkinfitInputError("the colour table's melanin_blend, illuminant and method must match the fit's")
     todo = np.flatnonzero(status == 0)
     n = len(pixels)
     roots, shading, remaining, delta_e, fitted = np.zeros((n, 2)), np.zeros(n), np.zeros(n), np.zeros(n), np.zeros((n, 3))
@@ -309,9 +319,11 @@ def fit_pixels(
             shading_reference, pad_size(todo.size, chunk_size), progress,
         )
         if exact_steps:
-            exact_model = table.model_arguments()
-            exact = lambda t, r: _exact_chunk(exact_model, r, t, exact_steps)  # noqa: E731
-            polished = map_batches(exact, (clean[todo], solved[0]), pad_size(todo.size, chunk_size), progress, "exact polish")[:5]
+            *exact_model, method = table.model_arguments()
+            exact = lambda t, r: _exact_chunk(tuple(exact_model), r, t, exact_steps, method)  # noqa: E731
+            # a transport Jacobian holds ~2 MB per pixel (doubling loops): smaller chunks
+            size = pad_size(todo.size, chunk_size if method == "diffusion" else min(chunk_size, _TRANSPORT_CHUNK))
+            polished = map_batches(exact, (clean[todo], solved[0]), size, progress, "exact polish")[:5]
             # converged: the spline fit had, and the exact steps leave at most step_tol to go
             polished[2] = np.where(solved[2] <= step_tol, polished[2], np.inf)
             solved = polished
@@ -438,6 +450,7 @@ class ImageFit:
     fitted_linear_rgb: np.ndarray  # (h, w, 3)
     seconds: float
     white_balance: tuple[float, float, float] = (1.0, 1.0, 1.0)
+    method: str = "diffusion"
 
     MAP_NAMES = ("melanin", "melanin_blend", "haemoglobin", "shading", "residual_dE2000", "status")
 
@@ -450,7 +463,7 @@ class ImageFit:
         ``OUT_OF_MODEL``) are rendered; the others keep their fitted colour (0)."""
         edited = render_maps(
             scale_melanin * self.melanin, scale_haemoglobin * self.haemoglobin, self.shading,
-            melanin_blend=self.melanin_blend, illuminant=illuminant,
+            melanin_blend=self.melanin_blend, illuminant=illuminant, method=self.method,
         ) * np.asarray(self.white_balance)
         return np.where((self.status <= PixelStatus.OUT_OF_MODEL)[..., None], edited, self.fitted_linear_rgb)
 
@@ -481,6 +494,7 @@ def fit_image(
     mask=None,
     use_alpha: bool = True,
     illuminant: str = DEFAULT_ILLUMINANT,
+    method: str = "diffusion",
     progress: bool | None = None,
     **options,
 ) -> ImageFit:
@@ -497,6 +511,8 @@ def fit_image(
         mask: (h, w) array or image path; pixels where it is 0 are not fitted (status MASKED).
         use_alpha: treat the file's alpha channel as a mask.
         illuminant: the illuminant of the camera model (colour-science name; D65 default).
+        method: forward model, ``"diffusion"`` (default) or ``"transport"`` (exact 1-D transport;
+            its colour table takes minutes to build on a laptop CPU, once per process).
         **options: passed to ``fit_pixels`` (steps, max_delta_e, chunk_size, ...).
     """
     import time
@@ -530,16 +546,20 @@ def fit_image(
         if not fittable.any():
             raise SkinfitInputError("no pixel of the image can be fitted (all black, saturated, masked or invalid)")
         calibration = calibrate(
-            pixels[fittable], melanin_blend=None if fit_blend else melanin_blend, white_balance=white_balance is True, illuminant=illuminant
+            pixels[fittable], melanin_blend=None if fit_blend else melanin_blend, white_balance=white_balance is True, illuminant=illuminant,
+            method=method,
         )
         melanin_blend, gains = calibration.melanin_blend, np.asarray(calibration.white_balance)
     elif white_balance is not False:
         gains = np.asarray(white_balance, dtype=float)
         if gains.shape != (3,) or not np.all(gains > 0):
             raise SkinfitInputError(f"white_balance must be True, False or three positive gains, got {white_balance}")
-    maps = _fit_in_bands(rgb, gains, mask, dict(melanin_blend=melanin_blend, illuminant=illuminant, **options), progress)
+    if method not in ("diffusion", "transport"):
+        raise SkinfitInputError(f"method must be 'diffusion' or 'transport', got {method!r}")
+    maps = _fit_in_bands(rgb, gains, mask, dict(melanin_blend=melanin_blend, illuminant=illuminant, method=method, **options), progress)
     fitted = maps.pop("fitted_rgb")
-    return ImageFit(**maps, fitted_linear_rgb=fitted, seconds=time.perf_counter() - start, white_balance=tuple(float(g) for g in gains))
+    return ImageFit(**maps, fitted_linear_rgb=fitted, seconds=time.perf_counter() - start, white_balance=tuple(float(g) for g in gains),
+                    method=method)
 
 
 def _fit_in_bands(rgb, gains, mask, options, progress, band_pixels: int = 1 << 20):
@@ -584,6 +604,7 @@ def render_maps(
     melanin_blend=0.7,
     illuminant: str = DEFAULT_ILLUMINANT,
     chunk_size: int = 65536,
+    method: str = "diffusion",
 ) -> np.ndarray:
     """Linear sRGB (h, w, 3) of parameter maps through the exact forward model and camera model.
 
@@ -595,7 +616,7 @@ def render_maps(
     columns = np.stack([np.clip(a, 0.0, 1.0).ravel() for a in (melanin, blend, haemoglobin)], axis=-1)
     weights = jnp.asarray(linear_srgb_weights(COLOUR_WAVELENGTHS_NM, illuminant))
     (rgb,) = map_batches(
-        lambda c: (params_rgb(c, weights),), (columns,), pad_size(len(columns), chunk_size)
+        lambda c: (params_rgb(c, weights, method),), (columns,), pad_size(len(columns), chunk_size)
     )
     return shading[..., None] * rgb.reshape(*melanin.shape, 3)
 

@@ -154,10 +154,12 @@ def fit_spectra(
             (oil) layer enters the model, and ``oil`` can be free (or fixed; default 0.3).
         max_rms: converged fits with a larger RMS residual get ``OUT_OF_MODEL``.
         method: forward model: ``"diffusion"`` (DJ2006 multipole, default) or ``"transport"``
-            (adding-doubling, exact 1-D transport; ~700x the cost per spectrum). Transport fits
-            start from the diffusion warm-start table and run every Gauss-Newton step, the
-            fallback and the diagnostics on the transport model; with a finite port the captured
-            fraction is the diffusion profile's (energy-corrected, as ``profile(method="transport")``).
+            (adding-doubling, exact 1-D transport; 100x (GPU) to thousands of times (CPU) the cost
+            per spectrum). A transport fit starts from the diffusion fit and finishes with bounded
+            Levenberg-Marquardt on the transport model (``skinfit.transport_fit``); residuals,
+            standard errors and statuses are the transport model's. With a finite port the
+            captured fraction is the diffusion profile's (energy-corrected, as
+            ``profile(method="transport")``).
         anisotropy: Henyey-Greenstein g of both layers for ``method="transport"``.
         chunk_size: spectra per compiled batch (memory stays bounded).
         settings: solver tolerances, step limits and warm-start table size.
@@ -271,8 +273,8 @@ class _Solver:
         self.model, self.settings = model, settings
         self.lam = jnp.asarray(wavelengths)
         self.w = jnp.asarray(weights)
-        # The warm start always comes from a diffusion table: a transport table would cost ~700x
-        # to build, and Gauss-Newton on the transport model takes the starts the rest of the way.
+        # The warm-start table is always diffusion's: a transport table would cost 100x (GPU) to
+        # thousands of times (CPU) more to build, and transport fits start from the diffusion fit.
         self.table = build_fit_table(model.with_method("diffusion"), wavelengths, weights, tuple(settings.table_shape),
                                      tuple(settings.start_groups))
 

@@ -1,6 +1,6 @@
 """Spectral fits on the transport-exact model: diffusion warm start, bounded Levenberg-Marquardt.
 
-A transport spectrum costs ~700 diffusion spectra (``skinfit.transport``), so a transport fit
+A transport spectrum costs 100 (GPU) to thousands (CPU) of diffusion spectra, so a transport fit
 spends its model evaluations where they count:
 
 1. The whole diffusion fit (``spectral_fit``: table, Gauss-Newton, fallback) gives each spectrum

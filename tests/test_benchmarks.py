@@ -27,3 +27,18 @@ def test_benchmark_command_writes_csv_plots_and_summary(tmp_path):
     assert (tmp_path / "pareto_planner.png").stat().st_size > 10_000
     summary = (tmp_path / "summary.md").read_text()
     assert "Reflectance only costs 1/" in summary
+
+
+def test_transport_benchmark_writes_its_results(tmp_path):
+    """benchmarks.transport_fit on two NIST subjects: both methods fit, transport lower in residual."""
+    import json
+
+    from benchmarks import transport_fit
+
+    assert transport_fit.main(["--n", "2", "--batch", "4", "--out", str(tmp_path)]) == 0
+    result = json.loads((tmp_path / "transport_fit.json").read_text())
+    assert result["cost"]["transport_over_diffusion"] > 1.0
+    assert result["nist"]["diffusion"]["success"] == result["nist"]["transport"]["success"] == 2
+    assert result["nist"]["rms_transport_below_diffusion"] == 2
+    assert len((tmp_path / "transport_fit_nist.csv").read_text().splitlines()) == 3
+    assert (tmp_path / "transport_fit_nist.png").stat().st_size > 0

@@ -139,3 +139,19 @@ def test_profiles_for_renderers_and_textures(tmp_path, capsys):
     assert set(channels) == {f"{k}.{c}" for k in ("albedo", "mfp") for c in "RGB"}
     assert np.all(channels["mfp.R"] > channels["mfp.B"])  # red light travels further
     assert main(["textures", str(out), "--out", str(tmp_path / "x.exr")]) != 0
+
+
+def test_fit_spectra_with_the_transport_method(tmp_path):
+    """--method transport fits a transport spectrum (on the coarse grid the fit compiles for)."""
+    import skinfit
+
+    wl = np.arange(400.0, 701.0, 30.0)
+    spectrum = np.asarray(skinfit.diffuse_reflectance(skinfit.SkinParams(0.05, 0.4, 0.03), wl, method="transport"))
+    path = tmp_path / "spectra.csv"
+    path.write_text("wavelength_nm,a\n" + "\n".join(f"{w:g},{v:.12g}" for w, v in zip(wl, spectrum)) + "\n")
+    out = tmp_path / "params.csv"
+    assert main(["fit-spectra", str(path), "--out", str(out), "--quiet", "--wavelengths", "400:700:30", "--method", "transport"]) == 0
+    header, row = (line.split(",") for line in out.read_text().splitlines())
+    got = [float(row[header.index(k)]) for k in ("melanin", "melanin_blend", "haemoglobin")]
+    np.testing.assert_allclose(got, [0.05, 0.4, 0.03], atol=1e-6)
+    assert row[header.index("status")] == "SUCCESS"

@@ -140,3 +140,23 @@ def test_cli_dask_needs_a_reachable_scheduler(tmp_path, capsys):
     write_exr(photo, {"R": np.full((2, 2), 0.3), "G": np.full((2, 2), 0.2), "B": np.full((2, 2), 0.15)})
     assert cli.main(["fit-image", str(photo), "--out", str(tmp_path / "o"), "--dask", "tcp://127.0.0.1:9"]) == 2
     assert "cannot reach the Dask scheduler" in capsys.readouterr().err
+
+
+def test_transport_image_fit_recovers_transport_renderings():
+    """method="transport": pixels rendered by exact transport are inverted through a colour table
+    built with transport (a coarse one here, to keep the test short) and the exact transport
+    polish, to the parameters that rendered them; the diffusion fit of the same pixels misses."""
+    from skinfit.colour_table import colour_table
+
+    rng = np.random.default_rng(5)
+    melanin, haemoglobin, shading = rng.uniform(0.01, 0.2, 6), rng.uniform(0.005, 0.08, 6), rng.uniform(0.6, 1.0, 6)
+    pixels = render_maps(melanin, haemoglobin, shading, method="transport")
+    table = colour_table(0.7, nodes=17, inverse_cells=64, method="transport")
+    fit = fit_pixels(pixels, table=table, method="transport", exact_steps=8, progress=False)
+    assert np.all(fit["status"] == PixelStatus.SUCCESS)
+    np.testing.assert_allclose(fit["melanin"], melanin, atol=1e-8)
+    np.testing.assert_allclose(fit["haemoglobin"], haemoglobin, atol=1e-8)
+    diffusion = fit_pixels(pixels, progress=False)
+    assert np.max(np.abs(diffusion["melanin"] - melanin)) > 1e-3
+    with pytest.raises(Exception, match="method"):
+        fit_pixels(pixels, table=table, progress=False)  # a transport table for a diffusion fit
