@@ -17,6 +17,7 @@ from ._validate import SkinfitInputError
 from .adding import ADDING_MODES
 from .layers import BLOOD_OXYGENATION, EPIDERMIS_THICKNESS_MM, SKIN_IOR
 from .params import PRESET_NAMES, SkinParams, preset
+from .reflectance import METHODS
 
 #: The bundled photo (package skinfit.data, folder data/ of the repository).
 DEMO_PHOTO = "eileen_collins_face.png"
@@ -454,7 +455,7 @@ def build_parser() -> argparse.ArgumentParser:
     fit.add_argument("--specular-included-deg", type=float, default=None,
                      help="the measurement includes the specular part at this incidence (e.g. 8 for d/8 SCI): lets --free include oil")
     fit.add_argument("--adding", choices=ADDING_MODES, default="directional", help="layer adding (default directional)")
-    fit.add_argument("--method", choices=("diffusion", "transport"), default="diffusion",
+    fit.add_argument("--method", choices=METHODS, default="diffusion",
                      help="forward model: DJ2006 diffusion (default) or exact 1-D transport (adding-doubling; ~100x slower on a GPU, more on a CPU)")
     fit.add_argument("--plot", help="PNG of measured against fitted spectra (best and worst fits)")
     fit.add_argument("--quiet", action="store_true", help="no progress bar")
@@ -468,7 +469,7 @@ def build_parser() -> argparse.ArgumentParser:
     image.add_argument("--white-balance", default="none", help="none (albedo maps, default), auto (fit camera gains once per image) or R,G,B")
     image.add_argument("--max-delta-e", type=float, default=1.0, help="CIEDE2000 above which a pixel is out of model (default 1)")
     image.add_argument("--exact-steps", type=int, default=0, help="Gauss-Newton steps on the exact model after the spline fit")
-    image.add_argument("--method", choices=("diffusion", "transport"), default="diffusion",
+    image.add_argument("--method", choices=METHODS, default="diffusion",
                        help="forward model: DJ2006 diffusion (default) or exact 1-D transport (its colour table takes ~1-2 min on a laptop CPU)")
     image.add_argument("--dask", metavar="ADDRESS", default=None, help="run the images as tasks on this Dask scheduler")
     image.add_argument("--quiet", action="store_true", help="no progress bar")

@@ -34,7 +34,7 @@ import numpy as np
 from ._validate import SkinfitInputError
 from .colorimetry import DEFAULT_ILLUMINANT, linear_srgb_weights
 from .params import SkinParams
-from .reflectance import diffuse_reflectance
+from .reflectance import _check_method, diffuse_reflectance
 
 #: The box of the image fit. Three channels cannot tell heavy melanin with much blood from heavy
 #: melanin with little (the colour map folds over: at C_m 0.37 the colours of C_h 0.075 and 0.36
@@ -123,8 +123,7 @@ def colour_table(
 
     if not 0.0 <= melanin_blend <= 1.0:
         raise SkinfitInputError(f"melanin_blend must be within [0, 1], got {melanin_blend}")
-    if method not in ("diffusion", "transport"):
-        raise SkinfitInputError(f"method must be 'diffusion' or 'transport', got {method!r}")
+    _check_method(method)
     if nodes is None:
         nodes = 129 if method == "diffusion" else TRANSPORT_NODES
     grid = np.linspace(0.0, 1.0, nodes)

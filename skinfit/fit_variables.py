@@ -132,22 +132,24 @@ class MeasurementModel:
         params = SkinParams(v["melanin"], v["melanin_blend"], v["haemoglobin"])
         ior = jnp.asarray(SKIN_IOR, dtype)
         options = (v["blood_oxygenation"], v["epidermis_thickness_mm"], ior, v["scattering_scale"])
-        if self.port_radius_mm is None or self.method == "transport":
-            diffuse = _skin_reflectance(params, wavelengths_nm, self.adding, *options)
-        if self.method == "transport":
-            from .reflectance import _skin_reflectance_transport
-
-            exact = _skin_reflectance_transport(params, wavelengths_nm, *options, anisotropy=jnp.asarray(self.anisotropy, dtype),
-                                                streams=16, ior_value=SKIN_IOR)
-        if self.port_radius_mm is not None:
+        if self.port_radius_mm is None:
+            diffuse = None if self.method == "transport" else _skin_reflectance(params, wavelengths_nm, self.adding, *options)
+        else:
             layers = _skin_stack(params, wavelengths_nm, *options)
             q, weights = energy_kernel(self.port_radius_mm, _PORT_QUADRATURE)
-            captured = _captured(layers, jnp.asarray(self.port_radius_mm, dtype), q, weights, self.adding)
-            # transport: the energy-corrected profile (diffusion's shape, transport's total), as
-            # ``profile(method="transport")``: the captured fraction is diffusion's
-            diffuse = captured if self.method != "transport" else exact * captured / diffuse
-        elif self.method == "transport":
-            diffuse = exact
+            diffuse = _captured(layers, jnp.asarray(self.port_radius_mm, dtype), q, weights, self.adding)
+        if self.method == "transport":
+            from .reflectance import _skin_reflectance_transport
+            from .transport import STREAMS
+
+            exact = _skin_reflectance_transport(params, wavelengths_nm, *options, anisotropy=jnp.asarray(self.anisotropy, dtype),
+                                                streams=STREAMS, ior_value=SKIN_IOR)
+            if diffuse is not None:
+                # the energy-corrected profile (diffusion's shape, transport's total), as
+                # ``profile(method="transport")``: the captured fraction is diffusion's
+                diffuse = exact * diffuse / _skin_reflectance(params, wavelengths_nm, self.adding, *options)
+            else:
+                diffuse = exact
         if self.specular_included_deg is not None:
             from .reflectance import normal_fresnel_reflectance
             from .surface import lobe_albedo

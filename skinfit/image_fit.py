@@ -45,6 +45,7 @@ from ._batching import map_batches, pad_size
 from ._validate import SkinfitInputError
 from .colorimetry import DEFAULT_ILLUMINANT, delta_e2000, linear_srgb_to_lab, linear_srgb_weights
 from .colour_table import COLOUR_WAVELENGTHS_NM, ColourTable, colour_table, model_rgb, params_rgb, spline_channels, spline_rgb, warm_starts
+from .reflectance import _check_method
 
 
 class PixelStatus(enum.IntEnum):
@@ -554,8 +555,7 @@ def fit_image(
         gains = np.asarray(white_balance, dtype=float)
         if gains.shape != (3,) or not np.all(gains > 0):
             raise SkinfitInputError(f"white_balance must be True, False or three positive gains, got {white_balance}")
-    if method not in ("diffusion", "transport"):
-        raise SkinfitInputError(f"method must be 'diffusion' or 'transport', got {method!r}")
+    _check_method(method)
     maps = _fit_in_bands(rgb, gains, mask, dict(melanin_blend=melanin_blend, illuminant=illuminant, method=method, **options), progress)
     fitted = maps.pop("fitted_rgb")
     return ImageFit(**maps, fitted_linear_rgb=fitted, seconds=time.perf_counter() - start, white_balance=tuple(float(g) for g in gains),

@@ -37,7 +37,7 @@ from ._linalg import solve_normal
 from .fit_table import build_fit_table
 from .fit_variables import CHROMOPHORES, VARIABLES, MeasurementModel, from_unbounded, to_unbounded
 from .layers import SKIN_ANISOTROPY
-from .reflectance import METHODS
+from .reflectance import _check_method
 
 
 class FitStatus(enum.IntEnum):
@@ -255,8 +255,7 @@ def _measurement_model(free, fixed, port_radius_mm, adding, specular_included_de
         raise SkinfitInputError("port_radius_mm must be a finite radius > 0 mm, or None")
     if adding not in ("directional", "symmetric"):
         raise SkinfitInputError(f"adding must be 'directional' or 'symmetric', got {adding!r}")
-    if method not in METHODS:
-        raise SkinfitInputError(f"method must be one of {', '.join(METHODS)}, got {method!r}")
+    _check_method(method)
     if not (np.ndim(anisotropy) == 0 and np.isfinite(anisotropy) and -0.99 <= float(anisotropy) <= 0.99):
         raise SkinfitInputError(f"anisotropy must be one value within [-0.99, 0.99], got {anisotropy!r}")
     order = tuple(n for n in VARIABLES if n in free)  # a canonical order: one compilation per set

@@ -28,6 +28,7 @@ import numpy as np
 
 from ._batching import map_batches, pad_size
 from .fit_variables import VARIABLES, MeasurementModel
+from .transport import _solve
 
 #: Lock-step iterations between two gatherings of the unconverged spectra.
 ROUND_STEPS = 6
@@ -86,7 +87,7 @@ class BoundedPolish:
 
         def solve(hessian):
             system = jnp.where(both, hessian, 0.0) + jnp.diag(jnp.where(keep, state.damping * scale, 1.0))
-            step = _solve_small(system, jnp.where(keep, -gradient, 0.0))
+            step = _solve(system, jnp.where(keep, -gradient, 0.0)[:, None])[:, 0]
             step = jnp.where(jnp.all(jnp.isfinite(step)), step, 0.0)
             return step, -(gradient @ step + 0.5 * step @ hessian @ step)
 
@@ -181,13 +182,3 @@ def _secant_update(curvature, step, jacobian, residual, new_jacobian, new_residu
     ok = (s_y > 1e-12 * jnp.sqrt((step @ step) * (change @ change))) & jnp.all(jnp.isfinite(update))
     return jnp.where(ok, curvature + update, curvature)
 
-
-def _solve_small(a, b):
-    """a^-1 b for a small system by unrolled Gauss-Jordan elimination (no LAPACK call: see
-    ``transport._solve``); a non-finite result marks a singular system."""
-    n = a.shape[-1]
-    m = jnp.concatenate([a, b[:, None]], axis=-1)
-    for k in range(n):
-        row = m[k] / m[k, k]
-        m = (m - m[:, k][:, None] * row[None, :]).at[k].set(row)
-    return m[:, n]
