@@ -47,11 +47,12 @@ import jax.numpy as jnp
 import numpy as np
 
 import skinfit
-from skinfit.hankel import HankelQuadrature
+from skinfit.hankel import HankelQuadrature, inverse_kernel
 from skinfit.profiles import _skin_profile
-from skinfit.hankel import inverse_kernel
 from skinfit.reflectance import _skin_reflectance, stack_transfer
-from skinfit.layers import skin_layers
+
+#: The sweep stresses the DJ2006 diffusion model (its validity domain is the multipole's).
+MODEL = skinfit.SkinModel.dj2006()
 
 FIELDS = ("melanin", "melanin_blend", "haemoglobin", "blood_oxygenation", "epidermis_thickness_mm")
 PROFILE_FLOOR = 1e-9
@@ -95,12 +96,13 @@ def _split(failed: np.ndarray, valid: np.ndarray, name: str) -> dict[str, int]:
     return {name: int(np.sum(failed & valid)), f"outside_validity_{name}": int(np.sum(failed & ~valid))}
 
 
+def _model(fields):
+    return MODEL.replace(blood_oxygenation=fields["blood_oxygenation"], epidermis_thickness_mm=fields["epidermis_thickness_mm"])
+
+
 def _reflectance(fields, lam):
     params = skinfit.SkinParams(fields["melanin"], fields["melanin_blend"], fields["haemoglobin"])
-    one = jnp.ones_like(fields["melanin"])
-    return params, _skin_reflectance(
-        params, lam, "directional", fields["blood_oxygenation"], fields["epidermis_thickness_mm"], 1.4 * one, one
-    )
+    return params, _skin_reflectance(params, lam, _model(fields))
 
 
 @jax.jit
@@ -119,9 +121,7 @@ def values_and_derivatives(fields, lam):
 def frequency_response(fields, lam, q):
     """R12(q) of shape (n, n_wavelengths, n_q)."""
     params, _ = _reflectance(fields, lam)
-    layers = skin_layers(
-        params, lam, blood_oxygenation=fields["blood_oxygenation"], epidermis_thickness_mm=fields["epidermis_thickness_mm"]
-    )
+    layers = _model(fields).layers(params, lam)
     expanded = [jax.tree_util.tree_map(lambda a: jnp.asarray(a)[..., None], layer) for layer in layers]
     return stack_transfer(expanded, q)
 
@@ -129,11 +129,7 @@ def frequency_response(fields, lam, q):
 def profiles(fields, lam, radii, quadrature=HankelQuadrature()):
     params, _ = _reflectance(fields, lam)
     q, kernel = inverse_kernel(radii, quadrature)
-    one = jnp.ones_like(fields["melanin"])
-    return _skin_profile(
-        params, lam, radii, q, kernel, "directional", fields["blood_oxygenation"], fields["epidermis_thickness_mm"],
-        1.4 * one, one, False,
-    )
+    return _skin_profile(params, lam, radii, q, kernel, _model(fields), False)
 
 
 def check_chunk(fields: dict, lam: np.ndarray, dtype) -> dict[str, int]:

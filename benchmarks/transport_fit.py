@@ -23,21 +23,14 @@ import jax.numpy as jnp
 import numpy as np
 
 import skinfit
+from benchmarks._timing import median_seconds
 from skinfit.measurements import read_nist
 
 KEYS = ("melanin", "melanin_blend", "haemoglobin")
 WAVELENGTHS = np.arange(400.0, 701.0, 10.0)
 NIST = Path(__file__).resolve().parents[1] / "data" / "nist_skin_reflectance_250-1000nm.csv"
-
-
-def _timed(function, *args, repeats=3):
-    jax.block_until_ready(function(*args))
-    times = []
-    for _ in range(repeats):
-        start = time.perf_counter()
-        jax.block_until_ready(function(*args))
-        times.append(time.perf_counter() - start)
-    return float(np.median(times))
+#: This benchmark records DJ2006's constants through diffusion and through direct adding-doubling.
+MODEL = skinfit.SkinModel.dj2006()
 
 
 def cost(batch: int = 64) -> dict:
@@ -45,15 +38,15 @@ def cost(batch: int = 64) -> dict:
     params = skinfit.SkinParams(*(jnp.asarray(a) for a in (rng.uniform(0.001, 0.5, batch), rng.uniform(0, 1, batch), rng.uniform(0.001, 0.1, batch))))
     lam = jnp.asarray(WAVELENGTHS)
     seconds = {
-        method: _timed(jax.jit(lambda p, m=method: skinfit.diffuse_reflectance(p, lam, method=m)), params) / batch
+        method: median_seconds(jax.jit(lambda p, m=method: skinfit.diffuse_reflectance(p, lam, method=m, model=MODEL)), params) / batch
         for method in ("diffusion", "transport")
     }
 
     def spectrum(x):
-        return skinfit.diffuse_reflectance(skinfit.SkinParams(x[0], x[1], x[2]), lam, method="transport")
+        return skinfit.diffuse_reflectance(skinfit.SkinParams(x[0], x[1], x[2]), lam, method="transport", model=MODEL)
 
     x = jnp.stack([params.melanin, params.melanin_blend, params.haemoglobin], axis=-1)[:8]
-    jacobian = _timed(jax.jit(jax.vmap(jax.jacfwd(spectrum))), x) / len(x)
+    jacobian = median_seconds(jax.jit(jax.vmap(jax.jacfwd(spectrum))), x) / len(x)
     return {
         "diffusion_s_per_spectrum": seconds["diffusion"],
         "transport_s_per_spectrum": seconds["transport"],
@@ -68,7 +61,7 @@ def nist_fits(n: int) -> tuple[dict, list[dict]]:
     fits, seconds = {}, {}
     for method in ("diffusion", "transport"):
         start = time.perf_counter()
-        fits[method] = skinfit.fit_spectra(WAVELENGTHS, spectra, method=method, progress=False)
+        fits[method] = skinfit.fit_spectra(WAVELENGTHS, spectra, method=method, model=MODEL, progress=False)
         seconds[method] = time.perf_counter() - start
     rows = []
     for i, subject in enumerate(nist.subjects[:n]):

@@ -31,8 +31,10 @@ from .calibration import ImageCalibration, calibrate  # noqa: E402
 from .colour_table import ColourTable, colour_table  # noqa: E402
 from .image_fit import ImageFit, PixelStatus, fit_image, fit_pixels, render_maps  # noqa: E402
 from .images import read_linear_rgb  # noqa: E402
-from .layers import Layer, skin_layers  # noqa: E402
-from .measurements import NistSpectra, read_nist  # noqa: E402
+from .layers import Layer  # noqa: E402
+from .skin_model import Diffusion, PopulationPrior, ScatteringLaw, SkinModel, Transport, skin_layers  # noqa: E402
+from .measurements import ArchiveSpectra, NistSpectra, read_issa, read_nist  # noqa: E402
+from .model_calibration import ModelCalibration, calibrate_model  # noqa: E402
 from .monte_carlo import MonteCarloResult, monte_carlo_reflectance  # noqa: E402
 from .multipole import SlabResponse, slab_response  # noqa: E402
 from .params import PRESET_NAMES, SkinParams, preset, preset_source  # noqa: E402
@@ -44,6 +46,15 @@ from .surface import brdf, lobe_albedo, reflectance_factor, surface_energy  # no
 from .tables import ProfileTable, profile_table, read_exr_table, write_table  # noqa: E402
 
 __all__ = [
+    "ArchiveSpectra",
+    "ModelCalibration",
+    "calibrate_model",
+    "read_issa",
+    "Diffusion",
+    "PopulationPrior",
+    "ScatteringLaw",
+    "SkinModel",
+    "Transport",
     "FitStatus",
     "SolverSettings",
     "SpectralFit",

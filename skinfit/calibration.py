@@ -50,7 +50,8 @@ def calibrate(
     sample_size: int = 4096,
     trim: float = 0.5,
     seed: int = 0,
-    method: str = "diffusion",
+    method: str | None = None,
+    model=None,
 ) -> ImageCalibration:
     """Fit the blend (unless given) and the white balance (if asked) to linear sRGB pixels (n, 3)
     that are fittable (finite, not black, not saturated, inside the mask)."""
@@ -66,7 +67,7 @@ def calibrate(
 
     def score(log_gains, blend):
         gains = np.exp([log_gains[0], 0.0, log_gains[1]])
-        maps = fit_pixels(sample / gains, melanin_blend=blend, progress=False, lm_max_steps=0, method=method)
+        maps = fit_pixels(sample / gains, melanin_blend=blend, progress=False, lm_max_steps=0, method=method, model=model)
         delta_e = np.sort(maps["residual_dE2000"][maps["status"] <= 2])
         return float(np.mean(delta_e[: max(1, int(trim * len(delta_e)))])) if delta_e.size else np.inf
 

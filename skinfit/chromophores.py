@@ -8,7 +8,11 @@ Sources (MODEL.md sections 2-3):
 * Haemoglobin: Prahl's OMLC molar extinction table (``spectra/prahl_haemoglobin.csv``) for whole
   blood at 150 g/L and 64,500 g/mol.
 * Reduced scattering: Mie + Rayleigh power law of the DJ2006 implementations; the dermis scatters
-  half as much as the epidermis.
+  half as much as the epidermis (``skinfit.SkinModel`` holds the laws of the calibrated model).
+* Beta-carotene (optional, not DJ2006): Prahl's OMLC PhotochemCAD table (``spectra/beta_carotene.csv``,
+  in hexane; Du et al. 1998), decadic molar extinction.
+* Blood in vessels (optional, not DJ2006): the pigment-packaging factor of Verkruysse et al. 1997
+  (Phys. Med. Biol. 42, 51-65) for blood confined to cylindrical vessels.
 
 Every function takes wavelengths of any shape and returns the same shape.
 """
@@ -48,6 +52,47 @@ def haemoglobin_table() -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     # rows[0] is the column header: wavelength_nm,epsilon_HbO2,epsilon_Hb
     data = np.loadtxt(rows[1:], delimiter=",", dtype=float, ndmin=2)
     return data[:, 0], data[:, 1], data[:, 2]
+
+
+@functools.cache
+def carotene_table() -> tuple[np.ndarray, np.ndarray]:
+    """Prahl's beta-carotene table as ``(wavelength_nm, epsilon)``, epsilon in cm^-1 per mol/L (decadic)."""
+    text = importlib.resources.files("skinfit.spectra").joinpath("beta_carotene.csv").read_text(encoding="utf-8")
+    rows = [line for line in text.splitlines() if line.strip() and not line.startswith("#")]
+    data = np.loadtxt(rows[1:], delimiter=",", dtype=float, ndmin=2)
+    # beyond 540 nm the table holds only the instrument's offset (~0.5 % of the peak): carotene is clear there
+    epsilon = np.where(data[:, 0] > _CAROTENE_CLEAR_NM, 0.0, np.maximum(data[:, 1], 0.0))
+    return data[:, 0], epsilon
+
+
+_CAROTENE_CLEAR_NM = 540.0
+
+
+def carotene_absorption(wavelengths_nm: ArrayLike) -> Float[Array, "..."]:
+    """Absorption of beta-carotene, mm^-1 per umol/L: ln(10) epsilon / 10 mm per cm x 1e-6 mol per umol.
+
+    Zero outside the table (below 220 nm, where skinfit is not valid anyway, and above 700 nm) and
+    beyond 540 nm. 0.0321 mm^-1 per umol/L at the 451 nm peak.
+    """
+    wl, epsilon = carotene_table()
+    lam = jnp.asarray(wavelengths_nm)
+    values = np.log(10.0) * epsilon / 10.0 * 1e-6
+    return jnp.interp(lam, jnp.asarray(wl, lam.dtype), jnp.asarray(values, lam.dtype), left=0.0, right=0.0)
+
+
+def packaging_factor(absorption: ArrayLike, vessel_radius_mm: ArrayLike) -> Float[Array, "..."]:
+    """Pigment-packaging factor of blood confined to vessels of radius R (Verkruysse et al. 1997):
+
+        C = (1 - exp(-2 mu_a R)) / (2 mu_a R),
+
+    which multiplies the absorption of homogeneously spread blood: inside strongly absorbing bands
+    light cannot reach the centre of a vessel, so the blood absorbs less than if it were spread out.
+    C = 1 at R = 0 (no packaging, DJ2006); finite with finite gradients for any R >= 0.
+    """
+    x = 2.0 * jnp.asarray(absorption) * jnp.asarray(vessel_radius_mm)
+    small = x < 1e-6
+    x_safe = jnp.where(small, 1.0, x)
+    return jnp.where(small, 1.0 - 0.5 * x, -jnp.expm1(-x_safe) / x_safe)
 
 
 def _interp_table(wavelengths_nm, column: int):

@@ -15,9 +15,9 @@ import numpy as np
 
 from ._validate import SkinfitInputError
 from .adding import ADDING_MODES
-from .layers import BLOOD_OXYGENATION, EPIDERMIS_THICKNESS_MM, SKIN_IOR
 from .params import PRESET_NAMES, SkinParams, preset
 from .reflectance import METHODS
+from .skin_model import SkinModel
 
 #: The bundled photo (package skinfit.data, folder data/ of the repository).
 DEMO_PHOTO = "eileen_collins_face.png"
@@ -63,10 +63,21 @@ def _add_model_arguments(parser: argparse.ArgumentParser, wavelengths: str = DEF
     group.add_argument("--haemoglobin", type=float, help="C_h, dermal blood volume fraction (0-1)")
     model = parser.add_argument_group("model options")
     model.add_argument("--wavelengths", default=wavelengths, help=f"nm, START:STOP:STEP or A,B,C (default {wavelengths})")
-    model.add_argument("--adding", choices=ADDING_MODES, default="directional", help="layer adding (default directional)")
-    model.add_argument("--blood-oxygenation", type=float, default=BLOOD_OXYGENATION, help="HbO2 fraction (default 0.75)")
-    model.add_argument("--epidermis-thickness-mm", type=float, default=EPIDERMIS_THICKNESS_MM, help="mm (default 0.25)")
-    model.add_argument("--ior", type=float, default=SKIN_IOR, help="refractive index of skin (default 1.4)")
+    _add_model_choice(model)
+    model.add_argument("--adding", choices=ADDING_MODES, default=None, help="layer adding of a diffusion model (default directional)")
+    model.add_argument("--blood-oxygenation", type=float, default=None, help="HbO2 fraction (default: the model's; DJ2006 0.75)")
+    model.add_argument("--epidermis-thickness-mm", type=float, default=None, help="mm (default: the model's; DJ2006 0.25)")
+    model.add_argument("--ior", type=float, default=None, help="refractive index of skin (default: the model's, 1.4)")
+
+
+def _add_model_choice(parser) -> None:
+    parser.add_argument("--model", default="calibrated", metavar="NAME",
+                        help="skin model: calibrated (default: constants calibrated on measured skin), dj2006 (Donner & Jensen "
+                             "2006), or a model JSON file (SkinModel.save, skinfit calibrate-model)")
+
+
+def _model(args) -> SkinModel:
+    return SkinModel.named(getattr(args, "model", None) or "calibrated")
 
 
 def _params(args) -> SkinParams:
@@ -84,12 +95,11 @@ def _params(args) -> SkinParams:
 
 
 def _model_options(args) -> dict:
-    return {
-        "adding": args.adding,
-        "blood_oxygenation": args.blood_oxygenation,
-        "epidermis_thickness_mm": args.epidermis_thickness_mm,
-        "ior": args.ior,
-    }
+    options = {"model": _model(args)}
+    for name in ("adding", "blood_oxygenation", "epidermis_thickness_mm", "ior"):
+        if getattr(args, name) is not None:
+            options[name] = getattr(args, name)
+    return options
 
 
 def _cmd_spectrum(args) -> int:
@@ -145,7 +155,7 @@ def _cmd_plan(args) -> int:
         derivatives=args.derivatives,
     )
     has_params = args.preset or any(getattr(args, n) is not None for n in ("melanin", "melanin_blend", "haemoglobin"))
-    print(plan(request, _params(args) if has_params else None).describe())
+    print(plan(request, _params(args) if has_params else None, model=_model(args)).describe())
     return 0
 
 
@@ -157,7 +167,7 @@ def _cmd_textures(args) -> int:
     missing = [k for k in ("melanin", "haemoglobin") if k not in channels]
     if missing:
         raise SkinfitInputError(f"{args.maps}: no {', '.join(missing)} channel (expected the maps EXR of fit-image)")
-    textures = renderer_textures(channels, illuminant=args.illuminant)
+    textures = renderer_textures(channels, illuminant=args.illuminant, model=_model(args))
     write_exr(args.out, textures, {"skinfit:units": "albedo: linear sRGB; mfp: mean free path 1/sigma_t' in mm",
                                    "skinfit:source": str(args.maps)})
     print(f"wrote {args.out}: albedo.R/G/B (linear sRGB) and mfp.R/G/B (mm)")
@@ -174,12 +184,14 @@ def _cmd_demo(args) -> int:
 
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
+    model = _model(args)
     print(f"skinfit demo: fitting {DEMO_PHOTO} (NASA portrait of Eileen Collins, public domain)")
-    print("  camera model: linear sRGB = white balance x shading x DJ2006 reflectance through CIE 1931 / D65;")
-    print("  melanin blend 0.7 (DJ2006), white balance fitted once for the image, melanin, haemoglobin and shading per pixel")
+    print(f"  skin model: {model.description}")
+    print("  camera model: linear sRGB = white balance x shading x skin reflectance through CIE 1931 / D65;")
+    print("  melanin blend 0.7, white balance fitted once for the image, melanin, haemoglobin and shading per pixel")
     with as_file(files("skinfit.data") / DEMO_PHOTO) as photo:
         linear, _ = read_linear_rgb(photo)
-    fit = fit_image(linear, white_balance=True, progress=not args.quiet)
+    fit = fit_image(linear, white_balance=True, model=model, progress=not args.quiet)
     summary = fit.summary()
     _write_fit(fit, out, "", DEMO_PHOTO, "D65")
     blush = _encoded_srgb(fit.render(scale_haemoglobin=1.5))
@@ -206,8 +218,9 @@ def _cmd_presets(args) -> int:
     radii = parse_radii(DEFAULT_RADII)
     start = time.perf_counter()
     spectra, srgb, spectral_profiles = {}, {}, {}
+    model = _model(args)
     for name in PRESET_NAMES:
-        table = profile_table(preset(name), wavelengths, radii, label=name)
+        table = profile_table(preset(name), wavelengths, radii, label=name, model=model)
         write_table(table, out / f"profiles_{name}.csv")
         spectra[name] = table.reflectance  # the table already holds the diffuse reflectance
         srgb[name] = np.asarray(spectrum_to_srgb(spectra[name], wavelengths))
@@ -219,7 +232,8 @@ def _cmd_presets(args) -> int:
     plot_spectra(wavelengths, spectra, srgb, out / "presets.png")
     plot_profiles(radii, wavelengths, spectral_profiles, out / "profiles.png")
 
-    print("skinfit presets: DJ2006 skin presets (diffuse reflectance, normal incidence, specular excluded)")
+    print(f"skinfit presets: the skin presets through {model.description}")
+    print("  (diffuse reflectance, normal incidence, specular excluded)")
     print(f"{'preset':<8} {'C_m':>6} {'beta_m':>6} {'C_h':>6}   R(450)   R(550)   R(650)   sRGB (D65)")
     for name in PRESET_NAMES:
         p = preset(name)
@@ -281,24 +295,27 @@ def _cmd_fit_spectra(args) -> int:
         except ValueError:
             raise SkinfitInputError(f"--fixed {item!r}: expected NAME=VALUE") from None
     start = time.perf_counter()
+    model = _model(args)
     fit = fit_spectra(
-        grid, target, free=tuple(args.free.split(",")), fixed=fixed, port_radius_mm=args.port_radius_mm,
-        specular_included_deg=args.specular_included_deg,
-        adding=args.adding, method=args.method, progress=not args.quiet,
+        grid, target, model=model, free=None if args.free is None else tuple(args.free.split(",")), fixed=fixed,
+        port_radius_mm=args.port_radius_mm, specular_included_deg=args.specular_included_deg, bandwidth_nm=args.bandwidth_nm,
+        colour_weight=args.colour_weight, prior=args.prior, adding=args.adding, method=args.method, progress=not args.quiet,
     )
     elapsed = time.perf_counter() - start
     columns = list(fit.parameters)
-    header = ["name", *columns, *(f"se_{c}" for c in fit.free), "rms_residual", "delta_e2000", "iterations", "status"]
+    header = ["name", *columns, *(f"se_{c}" for c in fit.free), "rms_residual", "delta_e2000", "iterations", "status", "model"]
     rows = [",".join(header)]
     for i, name in enumerate(names):
         values = [f"{fit.parameters[c][i]:.8g}" for c in columns] + [f"{fit.standard_errors[c][i]:.3g}" for c in fit.free]
-        values += [f"{fit.rms_residual[i]:.6g}", f"{fit.delta_e2000[i]:.4g}", str(int(fit.iterations[i])), FitStatus(int(fit.status[i])).name]
+        values += [f"{fit.rms_residual[i]:.6g}", f"{fit.delta_e2000[i]:.4g}", str(int(fit.iterations[i])), FitStatus(int(fit.status[i])).name,
+                   fit.model]
         rows.append(",".join([name.replace(",", " ")] + values))
     out = Path(args.out)
     out.parent.mkdir(parents=True, exist_ok=True)
     out.write_text("\n".join(rows) + "\n", encoding="utf-8")
     ok = fit.status == FitStatus.SUCCESS
-    print(f"fitted {len(names)} spectra ({ok.sum()} success) at {grid.size} wavelengths in {elapsed:.1f} s; free: {', '.join(fit.free)}")
+    print(f"fitted {len(names)} spectra ({ok.sum()} success) at {grid.size} wavelengths in {elapsed:.1f} s with model {fit.model}; "
+          f"free: {', '.join(fit.free)}")
     if ok.any():
         print(f"RMS residual: median {np.median(fit.rms_residual[ok]):.4f}, worst {fit.rms_residual[ok].max():.4f}; "
               f"CIEDE2000: median {np.median(fit.delta_e2000[ok]):.2f}, worst {fit.delta_e2000[ok].max():.2f}")
@@ -311,6 +328,49 @@ def _cmd_fit_spectra(args) -> int:
     return 0
 
 
+def _cmd_calibrate_model(args) -> int:
+    from .model_calibration import DEFAULT_CONSTANTS, calibrate_model
+
+    grid = parse_wavelengths(args.wavelengths)
+    if args.format == "issa":
+        from .measurements import FACE_SITES, read_issa
+
+        archive = read_issa(args.input)
+        sites = FACE_SITES if args.sites == "face" else None if args.sites == "all" else tuple(args.sites.split(","))
+        if sites is not None:
+            archive = archive.select([r.get("body_site") in sites for r in archive.records])
+        try:
+            archive = archive.complete(grid)
+        except IndexError:
+            raise SkinfitInputError(f"--wavelengths: the archive has no column for some of {grid.tolist()}") from None
+        target, groups = archive.reflectance, archive.subjects
+    else:
+        names, wavelengths, spectra = _read_spectra(args)
+        target = _resample(wavelengths, spectra, grid)
+        groups = np.array([name.rsplit("/", 1)[0] for name in names])  # "subject/site" names group by subject
+    if len(target) < 2:
+        raise SkinfitInputError("calibrating shared constants needs several spectra (found fewer than 2)")
+    constants = DEFAULT_CONSTANTS if args.constants is None else tuple(args.constants.split(","))
+    start = SkinModel.named(args.start)
+    print(f"calibrating {', '.join(constants)} on {len(target)} spectra of {len(set(groups))} subjects, starting from {start.name}")
+    calibration = calibrate_model(grid, target, model=start, constants=constants, groups=groups, folds=args.folds,
+                                  specular_included_deg=args.specular_included_deg, bandwidth_nm=args.bandwidth_nm,
+                                  port_radius_mm=args.port_radius_mm, max_steps=args.max_steps, name=args.name, progress=not args.quiet)
+    for name, value in calibration.constants.items():
+        print(f"  {name:34s} {value:11.6g}  +- {calibration.standard_errors[name]:.2g} (subject-robust)")
+    record = calibration.record()
+    fit = record["in_sample"]
+    print(f"in sample: CIEDE2000 median {fit['delta_e2000_median']:.3f}, p95 {fit['delta_e2000_p95']:.3f}; RMS median {fit['rms_median']:.4f}; "
+          f"{calibration.seconds:.0f} s")
+    if "cross_validation" in record:
+        cv = record["cross_validation"]["with_prior"]
+        print(f"cross-validated ({args.folds} subject folds): CIEDE2000 median {cv['delta_e2000_median']:.3f}, p95 {cv['delta_e2000_p95']:.3f}; "
+              f"RMS median {cv['rms_median']:.4f}")
+    calibration.model.save(args.out, calibration={"input": str(args.input), "wavelengths_nm": grid.tolist(), **record})
+    print(f"wrote {args.out} (use it with --model {args.out})")
+    return 0
+
+
 def _cmd_fit_image(args) -> int:
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
@@ -318,7 +378,7 @@ def _cmd_fit_image(args) -> int:
     options = dict(
         melanin_blend=args.melanin_blend, fit_blend=args.fit_blend, white_balance=white_balance, input_space=args.input_space,
         mask=args.mask, illuminant=args.illuminant, max_delta_e=args.max_delta_e, exact_steps=args.exact_steps, method=args.method,
-        progress=False if args.quiet else None,
+        model=_model(args), progress=False if args.quiet else None,
     )
     if args.dask:
         from .distributed import fit_images_on_cluster
@@ -345,7 +405,7 @@ def fit_image_to_folder(path, out: Path, options: dict) -> str:
         f"{path}: {summary['fitted']} of {summary['pixels']} pixels fitted ({100 * summary['fitted_fraction']:.1f} %), "
         f"CIEDE2000 median {summary['median_dE2000']:.3g}, 95th percentile {summary['p95_dE2000']:.3g}, "
         f"blend {summary['melanin_blend']:.3g}, white balance {' '.join(f'{g:.3f}' for g in fit.white_balance)}, "
-        f"{summary['seconds']:.1f} s -> {maps_path}"
+        f"model {summary['model']}, {summary['seconds']:.1f} s -> {maps_path}"
     )
 
 
@@ -362,6 +422,7 @@ def _write_fit(fit, out: Path, prefix: str, source: str, illuminant: str) -> Pat
         "skinfit:source": source,
         "skinfit:illuminant": illuminant,
         "skinfit:white_balance": " ".join(f"{g:.9g}" for g in fit.white_balance),
+        "skinfit:model": fit.model_name,
         "skinfit:summary": json.dumps(fit.summary()),
     }
     maps_path = out / f"{prefix}maps.exr"
@@ -414,6 +475,7 @@ def _cmd_render_maps(args) -> int:
         channels["shading"],
         melanin_blend=channels["melanin_blend"],
         illuminant=args.illuminant,
+        model=SkinModel.named(args.model or str(attributes.get("skinfit:model", "calibrated"))),
     )
     gains = [float(g) for g in str(attributes.get("skinfit:white_balance", "1 1 1")).split()]
     linear = linear * np.asarray(gains if len(gains) == 3 else [1.0, 1.0, 1.0])  # the camera's, as fitted
@@ -448,18 +510,46 @@ def build_parser() -> argparse.ArgumentParser:
     fit.add_argument("--format", choices=("csv", "nist"), default="csv", help="input layout (default csv)")
     fit.add_argument("--nist-spectra", choices=("average", "repeats"), default="average", help="NIST: subject averages (default) or every repeat")
     fit.add_argument("--wavelengths", default="400:700:10", help="fit wavelengths in nm, START:STOP:STEP or A,B,C (default 400:700:10)")
-    fit.add_argument("--free", default="melanin,melanin_blend,haemoglobin", help="comma-separated fit variables (see docs); "
-                     "also blood_oxygenation, epidermis_thickness_mm, scattering_scale, specular_offset, calibration_scale")
+    _add_model_choice(fit)
+    fit.add_argument("--free", default=None, help="comma-separated fit variables (default melanin,melanin_blend,haemoglobin, and oil "
+                     "with --specular-included-deg); also blood_oxygenation, epidermis_thickness_mm, scattering_scale, "
+                     "carotene_umol_per_l, specular_offset, calibration_scale")
     fit.add_argument("--fixed", action="append", metavar="NAME=VALUE", help="value of a variable that is not free (repeatable)")
     fit.add_argument("--port-radius-mm", type=float, default=None, help="instrument port radius: light beyond it is lost (default: none)")
     fit.add_argument("--specular-included-deg", type=float, default=None,
-                     help="the measurement includes the specular part at this incidence (e.g. 8 for d/8 SCI): lets --free include oil")
-    fit.add_argument("--adding", choices=ADDING_MODES, default="directional", help="layer adding (default directional)")
-    fit.add_argument("--method", choices=METHODS, default="diffusion",
-                     help="forward model: DJ2006 diffusion (default) or exact 1-D transport (adding-doubling; ~100x slower on a GPU, more on a CPU)")
+                     help="the measurement includes the specular part at this incidence (e.g. 8 for d/8 SCI): oil is then free")
+    fit.add_argument("--bandwidth-nm", type=float, default=None,
+                     help="the instrument's band-pass (FWHM of a triangular slit, nm; e.g. 10 for a 10 nm spectrophotometer)")
+    fit.add_argument("--colour-weight", type=float, default=0.02,
+                     help="weight of the CIELAB difference per Delta E beside the spectral residual (default 0.02; 0: spectral only)")
+    fit.add_argument("--prior", action=argparse.BooleanOptionalAction, default=None,
+                     help="the model's population prior (MAP fits); default: on for a model that has one (the "
+                          "calibrated default), off for dj2006; --no-prior gives maximum-likelihood fits")
+    fit.add_argument("--adding", choices=ADDING_MODES, default=None, help="layer adding of a diffusion model (default directional)")
+    fit.add_argument("--method", choices=METHODS, default=None,
+                     help="override the model's forward method: diffusion, or transport (direct adding-doubling; ~100x slower on a GPU, "
+                          "more on a CPU)")
     fit.add_argument("--plot", help="PNG of measured against fitted spectra (best and worst fits)")
     fit.add_argument("--quiet", action="store_true", help="no progress bar")
     fit.set_defaults(run=_cmd_fit_spectra)
+
+    calibrate = sub.add_parser("calibrate-model", help="calibrate the skin model's shared constants on measured spectra")
+    calibrate.add_argument("input", help="CSV (wavelength_nm column, one column per spectrum named SUBJECT or SUBJECT/SITE), NIST or ISSA file")
+    calibrate.add_argument("--out", required=True, help="model JSON to write (SkinModel.from_file, --model PATH)")
+    calibrate.add_argument("--format", choices=("csv", "nist", "issa"), default="csv", help="input layout (default csv)")
+    calibrate.add_argument("--nist-spectra", choices=("average", "repeats"), default="average", help=argparse.SUPPRESS)
+    calibrate.add_argument("--sites", default="face", help="ISSA body sites: face (default), all, or a comma-separated list")
+    calibrate.add_argument("--wavelengths", default="400:700:10", help="nm, START:STOP:STEP or A,B,C (default 400:700:10)")
+    calibrate.add_argument("--constants", default=None, help="comma-separated constants to calibrate (default: those of the shipped model)")
+    calibrate.add_argument("--start", default="calibrated", help="the model to start from: calibrated (default), dj2006 or a JSON file")
+    calibrate.add_argument("--specular-included-deg", type=float, default=None, help="as for fit-spectra (e.g. 8 for d/8 SCI)")
+    calibrate.add_argument("--bandwidth-nm", type=float, default=None, help="as for fit-spectra (the instrument's band-pass)")
+    calibrate.add_argument("--port-radius-mm", type=float, default=None, help="as for fit-spectra")
+    calibrate.add_argument("--folds", type=int, default=0, help="subject folds for cross-validation (default 0: none)")
+    calibrate.add_argument("--max-steps", type=int, default=40, help="outer Levenberg-Marquardt steps (default 40)")
+    calibrate.add_argument("--name", default="calibrated", help="name of the calibrated model (written into its outputs)")
+    calibrate.add_argument("--quiet", action="store_true", help="no progress bar")
+    calibrate.set_defaults(run=_cmd_calibrate_model)
 
     image = sub.add_parser("fit-image", help="fit melanin, haemoglobin and shading maps to photos or albedo images")
     image.add_argument("inputs", nargs="+", metavar="INPUT", help="EXR, TIFF, PNG or JPEG files")
@@ -469,8 +559,10 @@ def build_parser() -> argparse.ArgumentParser:
     image.add_argument("--white-balance", default="none", help="none (albedo maps, default), auto (fit camera gains once per image) or R,G,B")
     image.add_argument("--max-delta-e", type=float, default=1.0, help="CIEDE2000 above which a pixel is out of model (default 1)")
     image.add_argument("--exact-steps", type=int, default=0, help="Gauss-Newton steps on the exact model after the spline fit")
-    image.add_argument("--method", choices=METHODS, default="diffusion",
-                       help="forward model: DJ2006 diffusion (default) or exact 1-D transport (its colour table takes ~1-2 min on a laptop CPU)")
+    _add_model_choice(image)
+    image.add_argument("--method", choices=METHODS, default=None,
+                       help="override the model's forward method: diffusion, or transport (direct adding-doubling; its colour table "
+                            "takes ~1-2 min on a laptop CPU)")
     image.add_argument("--dask", metavar="ADDRESS", default=None, help="run the images as tasks on this Dask scheduler")
     image.add_argument("--quiet", action="store_true", help="no progress bar")
     image.add_argument("--input-space", default=None, help="srgb, linear or a colour-science RGB colourspace name")
@@ -485,12 +577,14 @@ def build_parser() -> argparse.ArgumentParser:
     render.add_argument("--scale-haemoglobin", type=float, default=1.0, help="e.g. 1.5 for a blush")
     render.add_argument("--scale-melanin", type=float, default=1.0)
     render.add_argument("--illuminant", default="D65")
+    render.add_argument("--model", default=None, metavar="NAME", help="skin model (default: the one the maps were fitted with)")
     render.set_defaults(run=_cmd_render_maps)
 
     textures = sub.add_parser("textures", help="albedo and subsurface-radius textures (EXR) from fitted maps")
     textures.add_argument("maps", metavar="MAPS.exr")
     textures.add_argument("--out", required=True, help="EXR to write")
     textures.add_argument("--illuminant", default="D65")
+    _add_model_choice(textures)
     textures.set_defaults(run=_cmd_textures)
 
     planned = sub.add_parser("plan", help="print what a request computes and what it skips")
@@ -507,15 +601,18 @@ def build_parser() -> argparse.ArgumentParser:
     group.add_argument("--melanin", type=float)
     group.add_argument("--melanin-blend", type=float)
     group.add_argument("--haemoglobin", type=float)
+    _add_model_choice(planned)
     planned.set_defaults(run=_cmd_plan)
 
     demo = sub.add_parser("demo", help="the main job on the bundled face photo: parameter maps, reconstruction, a blush edit")
     demo.add_argument("--out", default="skinfit-demo", help="output folder (default ./skinfit-demo)")
     demo.add_argument("--quiet", action="store_true", help="no progress bar")
+    _add_model_choice(demo)
     demo.set_defaults(run=_cmd_demo)
 
-    presets = sub.add_parser("presets", help="reflectance spectra and profile tables of the DJ2006 presets")
+    presets = sub.add_parser("presets", help="reflectance spectra and profile tables of the skin presets")
     presets.add_argument("--out", default="skinfit-presets", help="output folder (default ./skinfit-presets)")
+    _add_model_choice(presets)
     presets.set_defaults(run=_cmd_presets)
     return parser
 

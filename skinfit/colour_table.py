@@ -26,7 +26,9 @@ from __future__ import annotations
 
 import dataclasses
 import functools
+import hashlib
 
+import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -34,7 +36,8 @@ import numpy as np
 from ._validate import SkinfitInputError
 from .colorimetry import DEFAULT_ILLUMINANT, linear_srgb_weights
 from .params import SkinParams
-from .reflectance import _check_method, diffuse_reflectance
+from .reflectance import _skin_reflectance, model_with_options
+from .skin_model import SkinModel, Transport
 
 #: The box of the image fit. Three channels cannot tell heavy melanin with much blood from heavy
 #: melanin with little (the colour map folds over: at C_m 0.37 the colours of C_h 0.075 and 0.36
@@ -80,7 +83,11 @@ class ColourTable:
     inverse_chroma: np.ndarray  # (inverse_cells, inverse_cells, 2 branches, 2)
     inverse_jacobian: np.ndarray  # (inverse_cells, inverse_cells, 2 branches, 2 roots, 2 chroma)
     inverse_edges: tuple[np.ndarray, np.ndarray]
-    method: str = "diffusion"
+    model: SkinModel
+
+    @property
+    def model_name(self) -> str:
+        return self.model.name
 
     def warm_starts(self, pixels: np.ndarray) -> np.ndarray:
         """Both warm starts (n, 2 branches, 2) for linear sRGB pixels (n, 3) (see ``warm_starts``)."""
@@ -93,10 +100,10 @@ class ColourTable:
         return tuple(jnp.asarray(a) for a in arrays)
 
     def model_arguments(self):
-        """(melanin_blend, melanin_max, haemoglobin_max, weights, method): what ``model_rgb``
+        """(melanin_blend, melanin_max, haemoglobin_max, weights, model): what ``model_rgb``
         needs after the roots to evaluate the exact model this table interpolates."""
         weights = jnp.asarray(linear_srgb_weights(COLOUR_WAVELENGTHS_NM, self.illuminant))
-        return self.melanin_blend, self.melanin_max, self.haemoglobin_max, weights, self.method
+        return self.melanin_blend, self.melanin_max, self.haemoglobin_max, weights, self.model
 
     def parameters(self, roots):
         """(C_m, C_h) of normalised roots (..., 2)."""
@@ -104,7 +111,6 @@ class ColourTable:
         return self.melanin_max * roots[..., 0] ** 2, self.haemoglobin_max * roots[..., 1] ** 2
 
 
-@functools.lru_cache(maxsize=8)
 def colour_table(
     melanin_blend: float = 0.7,
     illuminant: str = DEFAULT_ILLUMINANT,
@@ -112,28 +118,61 @@ def colour_table(
     haemoglobin_max: float = HAEMOGLOBIN_MAX,
     nodes: int | None = None,
     inverse_cells: int = 512,
-    method: str = "diffusion",
+    method: str | None = None,
+    *,
+    model: SkinModel | None = None,
 ) -> ColourTable:
-    """Build (and cache per blend, illuminant, box, size and method) the colour spline and its inverse.
+    """Build (and cache per blend, illuminant, box, size and model) the colour spline and its inverse.
 
-    ``nodes`` per axis default to 129 for ``method="diffusion"`` and ``TRANSPORT_NODES`` for
-    ``method="transport"`` (adding-doubling, 100x (GPU) to thousands of times (CPU) the cost
-    per spectrum: measured 4 s on an H100, 1-2 min on a 2-core CPU; once per process)."""
+    ``model``: the ``SkinModel`` (default: the package default); ``method`` overrides its forward
+    method as in ``diffuse_reflectance``. ``nodes`` per axis default to 129 (node derivatives by
+    forward-mode autodiff), and to ``TRANSPORT_NODES`` for direct adding-doubling (``method="transport"``:
+    thousands of times the cost per spectrum on a CPU; measured 4 s on an H100, 1-2 min on a 2-core
+    CPU; once per process), whose node derivatives come from an interpolating spline."""
+    if not 0.0 <= melanin_blend <= 1.0:
+        raise SkinfitInputError(f"melanin_blend must be within [0, 1], got {melanin_blend}")
+    model = model_with_options(model, method=method)
+    direct = isinstance(model.method, Transport) and model.method.table is None
+    if nodes is None:
+        nodes = TRANSPORT_NODES if direct else 129
+    key = (float(melanin_blend), str(illuminant), float(melanin_max), float(haemoglobin_max), int(nodes), int(inverse_cells),
+           _model_key(model))
+    table = _TABLES.get(key)
+    if table is None:
+        table = _colour_table(float(melanin_blend), str(illuminant), float(melanin_max), float(haemoglobin_max), int(nodes),
+                              int(inverse_cells), model, direct)
+        _TABLES[key] = table
+        while len(_TABLES) > 8:
+            _TABLES.pop(next(iter(_TABLES)))
+    return table
+
+
+_TABLES: dict = {}
+
+
+def _model_key(model: SkinModel):
+    """Hashable identity of a model's structure and values."""
+    dynamic, static = eqx.partition(model, eqx.is_array)
+    leaves, treedef = jax.tree_util.tree_flatten(static)
+    digest = hashlib.blake2b(digest_size=16)
+    for leaf in jax.tree_util.tree_leaves(dynamic):
+        digest.update(np.ascontiguousarray(np.asarray(leaf)).tobytes())
+    return treedef, tuple(leaves), digest.digest()
+
+
+def _colour_table(melanin_blend, illuminant, melanin_max, haemoglobin_max, nodes, inverse_cells, model, direct) -> ColourTable:
     from scipy.spatial import cKDTree
 
     if not 0.0 <= melanin_blend <= 1.0:
         raise SkinfitInputError(f"melanin_blend must be within [0, 1], got {melanin_blend}")
-    _check_method(method)
-    if nodes is None:
-        nodes = 129 if method == "diffusion" else TRANSPORT_NODES
     grid = np.linspace(0.0, 1.0, nodes)
     u, v = (a.ravel() for a in np.meshgrid(grid, grid, indexing="ij"))
-    model = (float(melanin_blend), float(melanin_max), float(haemoglobin_max))
+    box = (float(melanin_blend), float(melanin_max), float(haemoglobin_max))
     weights = jnp.asarray(linear_srgb_weights(COLOUR_WAVELENGTHS_NM, illuminant))
-    if method == "diffusion":
-        value, du, dv, duv = (np.asarray(a).reshape(nodes, nodes, 3) for a in _node_data(jnp.asarray(u), jnp.asarray(v), *model, weights, method))
+    if not direct:
+        value, du, dv, duv = (np.asarray(a).reshape(nodes, nodes, 3) for a in _node_data(jnp.asarray(u), jnp.asarray(v), *box, weights, model))
     else:
-        value, du, dv, duv = _interpolated_node_data(grid, np.stack([u, v], axis=-1), *model, weights, method)
+        value, du, dv, duv = _interpolated_node_data(grid, np.stack([u, v], axis=-1), *box, weights, model)
     h = 1.0 / (nodes - 1)  # derivatives per unit root -> per unit cell coordinate
     coefficients = _patch_coefficients(value, h * du, h * dv, h * h * duv)
 
@@ -162,8 +201,8 @@ def colour_table(
     starts = np.stack([first, second], axis=1).reshape(inverse_cells, inverse_cells, 2)
     inverse = [a[starts].astype(np.float32) for a in (fine_roots, chroma, _inverse_2x2(chroma_jacobian))]
     inner_edges = (edges[0, 1:-1].copy(), edges[1, 1:-1].copy())
-    blend, c_m_max, c_h_max = model
-    return ColourTable(blend, illuminant, c_m_max, c_h_max, nodes, coefficients, *inverse, inner_edges, method)
+    blend, c_m_max, c_h_max = box
+    return ColourTable(blend, illuminant, c_m_max, c_h_max, nodes, coefficients, *inverse, inner_edges, model)
 
 
 @jax.jit
@@ -183,31 +222,31 @@ def warm_starts(inverse, pixels):
     return jnp.clip(roots[a, b] + step, 0.0, 1.0)
 
 
-@functools.partial(jax.jit, static_argnames="method")
-def params_rgb(columns, weights, method="diffusion"):
-    """Linear sRGB (shading 1) of the forward model (``method``) for (C_m, beta_m, C_h) rows
-    (n, 3), with ``weights`` (3, wavelengths) from ``linear_srgb_weights(COLOUR_WAVELENGTHS_NM, illuminant)``."""
+@eqx.filter_jit
+def params_rgb(columns, weights, model: SkinModel):
+    """Linear sRGB (shading 1) of ``model`` for (C_m, beta_m, C_h) rows (n, 3), with ``weights``
+    (3, wavelengths) from ``linear_srgb_weights(COLOUR_WAVELENGTHS_NM, illuminant)``."""
     params = SkinParams(columns[:, 0], columns[:, 1], columns[:, 2])
-    return diffuse_reflectance(params, COLOUR_WAVELENGTHS_NM, method=method) @ weights.T
+    return _skin_reflectance(params, jnp.asarray(COLOUR_WAVELENGTHS_NM, columns.dtype), model) @ weights.T
 
 
-@functools.partial(jax.jit, static_argnames="method")
-def model_rgb(roots, melanin_blend, melanin_max, haemoglobin_max, weights, method="diffusion"):
+@eqx.filter_jit
+def model_rgb(roots, melanin_blend, melanin_max, haemoglobin_max, weights, model: SkinModel):
     """Linear sRGB (shading 1) of the forward model at normalised roots (n, 2) in [0, 1].
 
     Not clipped here: a clip's derivative at the box edge is 1/2 in JAX, which would corrupt the
     spline's edge nodes."""
     c_m = melanin_max * roots[:, 0] ** 2
     c_h = haemoglobin_max * roots[:, 1] ** 2
-    return params_rgb(jnp.stack([c_m, jnp.full_like(c_m, melanin_blend), c_h], axis=-1), weights, method)
+    return params_rgb(jnp.stack([c_m, jnp.full_like(c_m, melanin_blend), c_h], axis=-1), weights, model)
 
 
-@functools.partial(jax.jit, static_argnames="method")
-def _node_data(u, v, melanin_blend, melanin_max, haemoglobin_max, weights, method):
+@eqx.filter_jit
+def _node_data(u, v, melanin_blend, melanin_max, haemoglobin_max, weights, model):
     """Colour, d/du, d/dv and d2/dudv at nodes (n,), each (n, 3), by forward-mode autodiff."""
 
     def colour(u, v):
-        return model_rgb(jnp.stack([u, v])[None], melanin_blend, melanin_max, haemoglobin_max, weights, method)[0]
+        return model_rgb(jnp.stack([u, v])[None], melanin_blend, melanin_max, haemoglobin_max, weights, model)[0]
 
     def with_du(u, v):
         return jax.jvp(lambda x: colour(x, v), (u,), (jnp.ones_like(u),))
@@ -219,7 +258,7 @@ def _node_data(u, v, melanin_blend, melanin_max, haemoglobin_max, weights, metho
     return jax.vmap(node)(u, v)
 
 
-def _interpolated_node_data(grid, roots, melanin_blend, melanin_max, haemoglobin_max, weights, method):
+def _interpolated_node_data(grid, roots, melanin_blend, melanin_max, haemoglobin_max, weights, model):
     """Colour at the nodes from the model, derivatives from the bicubic interpolating spline
     through them (not-a-knot, SciPy): for the transport model, whose nested forward-mode
     derivatives cost ~11 spectra per node against one for a value (measured)."""
@@ -227,7 +266,7 @@ def _interpolated_node_data(grid, roots, melanin_blend, melanin_max, haemoglobin
 
     from ._batching import map_batches
 
-    evaluate = lambda r: (model_rgb(r, melanin_blend, melanin_max, haemoglobin_max, weights, method),)  # noqa: E731
+    evaluate = lambda r: (model_rgb(r, melanin_blend, melanin_max, haemoglobin_max, weights, model),)  # noqa: E731
     (value,) = map_batches(evaluate, (roots,), min(len(roots), 256))
     n = len(grid)
     value = value.reshape(n, n, 3)

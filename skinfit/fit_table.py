@@ -15,7 +15,7 @@ stored contiguously so that one argmin per row serves all groups.
 
 from __future__ import annotations
 
-import functools
+import hashlib
 
 import equinox as eqx
 import jax
@@ -23,7 +23,7 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Float
 
-from .fit_variables import CHROMOPHORES, STARTS, VARIABLES, MeasurementModel, to_unbounded
+from .fit_variables import CHROMOPHORES, MODEL, MODEL_FIELDS, STARTS, VARIABLES, MeasurementModel, to_unbounded
 
 #: Grid of each free chromophore (index by the table shape (C_m, beta_m, C_h)).
 _AXES = {
@@ -35,8 +35,9 @@ _AXES = {
 #: Targets per block of the nearest-entry search.
 _SEARCH_BATCH = 128
 
-#: Relative part of the table's spread left out of the search basis.
+#: Relative part of the table's spread left out of the search basis, and the basis's (padded) size.
 _BASIS_TOLERANCE = 1e-4
+_BASIS_ROWS = 24
 
 
 class FitTable(eqx.Module):
@@ -84,7 +85,6 @@ class FitTable(eqx.Module):
         return jnp.take_along_axis(u0 + step, order[:, :, None], axis=1)
 
 
-@functools.lru_cache(maxsize=8)
 def build_fit_table(
     model: MeasurementModel, wavelengths: tuple, weights: tuple, shape: tuple, groups: tuple
 ) -> FitTable:
@@ -94,29 +94,54 @@ def build_fit_table(
         shape: grid sizes of (C_m, beta_m, C_h); axes of chromophores that are not free are dropped.
         groups: start-group bands along (beta_m, C_h).
 
-    Variables other than the chromophores sit at their fixed value or documented start.
+    Variables other than the chromophores sit at their fixed value or documented start. Tables are
+    kept for the last few models (keyed by their values): a fit with the same model reuses one, and a
+    model with other constants builds its own without recompiling.
     """
+    key = (model.static_key, _digest(model), wavelengths, weights, tuple(shape), tuple(groups))
+    table = _TABLES.get(key)
+    if table is None:
+        table = _build_fit_table(model, wavelengths, weights, tuple(shape), tuple(groups))
+        _TABLES[key] = table
+        while len(_TABLES) > 8:
+            _TABLES.pop(next(iter(_TABLES)))
+    return table
+
+
+_TABLES: dict = {}
+
+
+def _digest(tree) -> bytes:
+    """A digest of the array values of a pytree (for caching results per value)."""
+    h = hashlib.blake2b(digest_size=16)
+    for leaf in jax.tree_util.tree_leaves(eqx.filter(tree, eqx.is_array)):
+        h.update(np.ascontiguousarray(np.asarray(leaf)).tobytes())
+    return h.digest()
+
+
+def _start_value(model: MeasurementModel, name: str) -> float:
+    var = VARIABLES[name]
+    if name in STARTS:
+        return STARTS[name]
+    if var.default == MODEL:
+        return float(np.mean(np.asarray(getattr(model.skin, MODEL_FIELDS[name]))))
+    return float(var.default)
+
+
+def _build_fit_table(model, wavelengths, weights, shape, groups) -> FitTable:
     free_axes = [
-        _AXES[name](shape[CHROMOPHORES.index(name)]) if name in CHROMOPHORES else np.array([STARTS.get(name, VARIABLES[name].default)])
+        _AXES[name](shape[CHROMOPHORES.index(name)]) if name in CHROMOPHORES else np.array([_start_value(model, name)])
         for name in model.free
     ]
     mesh = np.meshgrid(*free_axes, indexing="ij")
     grid_u = np.stack([to_unbounded(n, m.ravel()) for n, m in zip(model.free, mesh)], axis=-1)
-    lam, w = np.asarray(wavelengths), np.asarray(weights)
-
-    def entry(u):
-        spectrum_and_jacobian = jax.jacfwd(lambda x: (model.spectrum(x, lam),) * 2, has_aux=True)
-        jacobian, spectrum = spectrum_and_jacobian(u)
-        jw = w[:, None] * jacobian  # (m, f)
-        normal = jw.T @ jw + 1e-10 * jnp.eye(u.shape[-1])
-        return spectrum, jw, jnp.linalg.solve(normal, jw.T * w[None, :])
+    w = np.asarray(weights)
 
     # batched so that memory stays bounded (the finite-port model carries a q axis); padded to
     # whole batches, since a remainder batch would be compiled separately
     batch = min(256, len(grid_u))
     padded = np.concatenate([grid_u, np.repeat(grid_u[-1:], -len(grid_u) % batch, axis=0)])
-    build = jax.jit(lambda gu: jax.lax.map(entry, gu, batch_size=batch))
-    spectra, jw, step_op = (np.asarray(a)[: len(grid_u)] for a in build(jnp.asarray(padded)))
+    spectra, jw, step_op = (np.asarray(a)[: len(grid_u)] for a in _table_entries(model, jnp.asarray(padded), wavelengths, jnp.asarray(w), batch))
 
     members = _group_members(model.free, free_axes, groups)
     size = max(len(m) for m in members)
@@ -128,7 +153,11 @@ def build_fit_table(
     _, singular, vt = np.linalg.svd(weighted - mean, full_matrices=False)
     tail = np.sqrt(np.cumsum((singular**2)[::-1])[::-1] / np.sum(singular**2))  # tail[k]: left out by keeping k
     rank = int(np.argmax(np.append(tail, 0.0) <= _BASIS_TOLERANCE))
-    basis = vt[: max(rank, 1)]
+    # a fixed number of rows (zero rows beyond the rank change no distance): the search compiles
+    # once per grid, whatever the model's values
+    size = min(_BASIS_ROWS, vt.shape[0])
+    basis = np.zeros((size, vt.shape[1]))
+    basis[: min(max(rank, 1), size)] = vt[: min(max(rank, 1), size)]
     coords = (weighted - mean) @ basis.T
     grouped = lambda a, dtype=float: jnp.asarray(a[order].astype(dtype))  # noqa: E731 - NumPy first: no compilations
     return FitTable(
@@ -142,6 +171,22 @@ def build_fit_table(
         coords=grouped(coords, np.float32),
         coords_sq=grouped(np.sum(coords**2, axis=1), np.float32),
     )
+
+
+@eqx.filter_jit
+def _table_entries(model, grid_u, wavelengths, w, batch):
+    """Spectrum, weighted Jacobian and Gauss-Newton step operator of every entry (compiled once per
+    measurement structure and grid: the model's values are traced)."""
+    lam = np.asarray(wavelengths)
+
+    def entry(u):
+        spectrum_and_jacobian = jax.jacfwd(lambda x: (model.spectrum(x, lam),) * 2, has_aux=True)
+        jacobian, spectrum = spectrum_and_jacobian(u)
+        jw = w[:, None] * jacobian  # (m, f)
+        normal = jw.T @ jw + 1e-10 * jnp.eye(u.shape[-1])
+        return spectrum, jw, jnp.linalg.solve(normal, jw.T * w[None, :])
+
+    return jax.lax.map(entry, grid_u, batch_size=batch)
 
 
 def _group_members(free, free_axes, groups) -> list[np.ndarray]:

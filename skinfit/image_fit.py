@@ -31,7 +31,6 @@ Pixels that cannot be fitted get a status code and zeros, never NaN.
 from __future__ import annotations
 
 import dataclasses
-import functools
 import enum
 from typing import NamedTuple
 
@@ -44,8 +43,19 @@ import optimistix as optx
 from ._batching import map_batches, pad_size
 from ._validate import SkinfitInputError
 from .colorimetry import DEFAULT_ILLUMINANT, delta_e2000, linear_srgb_to_lab, linear_srgb_weights
-from .colour_table import COLOUR_WAVELENGTHS_NM, ColourTable, colour_table, model_rgb, params_rgb, spline_channels, spline_rgb, warm_starts
-from .reflectance import _check_method
+from .colour_table import (
+    COLOUR_WAVELENGTHS_NM,
+    ColourTable,
+    _model_key,
+    colour_table,
+    model_rgb,
+    params_rgb,
+    spline_channels,
+    spline_rgb,
+    warm_starts,
+)
+from .reflectance import model_with_options
+from .skin_model import SkinModel, Transport, resolve_model
 
 
 class PixelStatus(enum.IntEnum):
@@ -70,11 +80,11 @@ def _spline_colour(coefficients):
     return colour
 
 
-def _exact_colour(melanin_blend, melanin_max, haemoglobin_max, weights, method="diffusion"):
+def _exact_colour(melanin_blend, melanin_max, haemoglobin_max, weights, model):
     """The exact model's colour at roots u, v (n,), in the layout of ``_spline_colour``."""
 
     def one(roots):
-        colour = lambda r: model_rgb(r[None], melanin_blend, melanin_max, haemoglobin_max, weights, method)[0]  # noqa: E731
+        colour = lambda r: model_rgb(r[None], melanin_blend, melanin_max, haemoglobin_max, weights, model)[0]  # noqa: E731
         value, du = jax.jvp(colour, (roots,), (jnp.array([1.0, 0.0], roots.dtype),))
         dv = jax.jvp(colour, (roots,), (jnp.array([0.0, 1.0], roots.dtype),))[1]
         return value, du, dv
@@ -223,9 +233,9 @@ def _first_pass_chunk(coefficients, inverse, target, steps):
 _TRANSPORT_CHUNK = 1024
 
 
-@functools.partial(jax.jit, static_argnames="method")
-def _exact_chunk(exact_model, roots, target, steps, method):
-    return _gauss_newton(_exact_colour(*exact_model, method), roots, target, jnp.full(len(roots), _INITIAL_DAMPING, roots.dtype), steps)
+@eqx.filter_jit
+def _exact_chunk(exact_model, roots, target, steps):
+    return _gauss_newton(_exact_colour(*exact_model), roots, target, jnp.full(len(roots), _INITIAL_DAMPING, roots.dtype), steps)
 
 
 @jax.jit
@@ -272,7 +282,8 @@ def fit_pixels(
     chunk_size: int = 32768,
     progress: bool | None = None,
     table: ColourTable | None = None,
-    method: str = "diffusion",
+    method: str | None = None,
+    model: SkinModel | None = None,
 ) -> dict[str, np.ndarray]:
     """Fit every pixel of a linear sRGB image (h, w, 3) (or pixels (n, 3)).
 
@@ -289,11 +300,10 @@ def fit_pixels(
         black_level, saturation_level: linear values below / at or above which a pixel is
             ``BLACK`` / ``SATURATED``.
         table: a ``colour_table(...)`` of another resolution (spline nodes, inverse cells) to use
-            instead of the default one; its blend, illuminant and method must match.
-        method: forward model, ``"diffusion"`` (DJ2006, default) or ``"transport"``
-            (adding-doubling): the colour spline is built with it (``colour_table(method=...)``,
-            33 x 33 nodes: minutes on a laptop CPU, once per process and blend), and so are the
-            ``exact_steps``.
+            instead of the default one; its blend, illuminant and model must match.
+        model: the ``SkinModel`` (default: the package default); ``method`` overrides its forward
+            method (``"transport"``: direct adding-doubling, whose colour table takes minutes on a
+            laptop CPU, once per process and blend). The colour spline and the ``exact_steps`` use it.
 
     Returns maps of the input's leading shape: ``melanin``, ``melanin_blend``, ``haemoglobin``,
     ``shading``, ``residual_dE2000``, ``status`` (``PixelStatus``) and ``fitted_rgb`` (..., 3).
@@ -307,10 +317,11 @@ def fit_pixels(
     pixels = rgb.reshape(-1, 3)
     status, clean = _screen(pixels, mask, black_level, saturation_level)
 
+    model = model_with_options(model, method=method)
     if table is None:
-        table = colour_table(float(melanin_blend), illuminant, method=method)
-    elif (table.melanin_blend, table.illuminant, table.method) != (float(melanin_blend), illuminant, method):
-        raise SkinfitInputError("the colour table's melanin_blend, illuminant and method must match the fit's")
+        table = colour_table(float(melanin_blend), illuminant, model=model)
+    elif (table.melanin_blend, table.illuminant, _model_key(table.model)) != (float(melanin_blend), illuminant, _model_key(model)):
+        raise SkinfitInputError("the colour table's melanin_blend, illuminant and model must match the fit's")
     todo = np.flatnonzero(status == 0)
     n = len(pixels)
     roots, shading, remaining, delta_e, fitted = np.zeros((n, 2)), np.zeros(n), np.zeros(n), np.zeros(n), np.zeros((n, 3))
@@ -320,10 +331,11 @@ def fit_pixels(
             shading_reference, pad_size(todo.size, chunk_size), progress,
         )
         if exact_steps:
-            *exact_model, method = table.model_arguments()
-            exact = lambda t, r: _exact_chunk(tuple(exact_model), r, t, exact_steps, method)  # noqa: E731
-            # a transport Jacobian holds ~2 MB per pixel (doubling loops): smaller chunks
-            size = pad_size(todo.size, chunk_size if method == "diffusion" else min(chunk_size, _TRANSPORT_CHUNK))
+            exact_model = table.model_arguments()
+            exact = lambda t, r: _exact_chunk(exact_model, r, t, exact_steps)  # noqa: E731
+            # a direct transport Jacobian holds ~2 MB per pixel (doubling loops): smaller chunks
+            direct = isinstance(model.method, Transport) and model.method.table is None
+            size = pad_size(todo.size, min(chunk_size, _TRANSPORT_CHUNK) if direct else chunk_size)
             polished = map_batches(exact, (clean[todo], solved[0]), size, progress, "exact polish")[:5]
             # converged: the spline fit had, and the exact steps leave at most step_tol to go
             polished[2] = np.where(solved[2] <= step_tol, polished[2], np.inf)
@@ -451,7 +463,11 @@ class ImageFit:
     fitted_linear_rgb: np.ndarray  # (h, w, 3)
     seconds: float
     white_balance: tuple[float, float, float] = (1.0, 1.0, 1.0)
-    method: str = "diffusion"
+    model: SkinModel | None = None
+
+    @property
+    def model_name(self) -> str:
+        return resolve_model(self.model).name
 
     MAP_NAMES = ("melanin", "melanin_blend", "haemoglobin", "shading", "residual_dE2000", "status")
 
@@ -464,7 +480,7 @@ class ImageFit:
         ``OUT_OF_MODEL``) are rendered; the others keep their fitted colour (0)."""
         edited = render_maps(
             scale_melanin * self.melanin, scale_haemoglobin * self.haemoglobin, self.shading,
-            melanin_blend=self.melanin_blend, illuminant=illuminant, method=self.method,
+            melanin_blend=self.melanin_blend, illuminant=illuminant, model=self.model,
         ) * np.asarray(self.white_balance)
         return np.where((self.status <= PixelStatus.OUT_OF_MODEL)[..., None], edited, self.fitted_linear_rgb)
 
@@ -481,6 +497,7 @@ class ImageFit:
             "p95_dE2000": float(np.percentile(delta_e, 95)) if delta_e.size else float("nan"),
             "melanin_blend": round(float(self.melanin_blend.flat[0]), 6) if self.melanin_blend.size else float("nan"),
             "white_balance": list(self.white_balance),
+            "model": self.model_name,
             "seconds": self.seconds,
         }
 
@@ -495,7 +512,8 @@ def fit_image(
     mask=None,
     use_alpha: bool = True,
     illuminant: str = DEFAULT_ILLUMINANT,
-    method: str = "diffusion",
+    method: str | None = None,
+    model: SkinModel | None = None,
     progress: bool | None = None,
     **options,
 ) -> ImageFit:
@@ -512,8 +530,8 @@ def fit_image(
         mask: (h, w) array or image path; pixels where it is 0 are not fitted (status MASKED).
         use_alpha: treat the file's alpha channel as a mask.
         illuminant: the illuminant of the camera model (colour-science name; D65 default).
-        method: forward model, ``"diffusion"`` (default) or ``"transport"`` (exact 1-D transport;
-            its colour table takes minutes to build on a laptop CPU, once per process).
+        model: the ``SkinModel`` (default: the package default); ``method`` overrides its forward
+            method as in ``fit_pixels``.
         **options: passed to ``fit_pixels`` (steps, max_delta_e, chunk_size, ...).
     """
     import time
@@ -521,6 +539,7 @@ def fit_image(
     from .images import read_linear_rgb
 
     start = time.perf_counter()
+    model = model_with_options(model, method=method)
     alpha = None
     if _is_path(image):
         rgb, alpha = read_linear_rgb(image, input_space)
@@ -548,18 +567,17 @@ def fit_image(
             raise SkinfitInputError("no pixel of the image can be fitted (all black, saturated, masked or invalid)")
         calibration = calibrate(
             pixels[fittable], melanin_blend=None if fit_blend else melanin_blend, white_balance=white_balance is True, illuminant=illuminant,
-            method=method,
+            model=model,
         )
         melanin_blend, gains = calibration.melanin_blend, np.asarray(calibration.white_balance)
     elif white_balance is not False:
         gains = np.asarray(white_balance, dtype=float)
         if gains.shape != (3,) or not np.all(gains > 0):
             raise SkinfitInputError(f"white_balance must be True, False or three positive gains, got {white_balance}")
-    _check_method(method)
-    maps = _fit_in_bands(rgb, gains, mask, dict(melanin_blend=melanin_blend, illuminant=illuminant, method=method, **options), progress)
+    maps = _fit_in_bands(rgb, gains, mask, dict(melanin_blend=melanin_blend, illuminant=illuminant, model=model, **options), progress)
     fitted = maps.pop("fitted_rgb")
     return ImageFit(**maps, fitted_linear_rgb=fitted, seconds=time.perf_counter() - start, white_balance=tuple(float(g) for g in gains),
-                    method=method)
+                    model=model)
 
 
 def _fit_in_bands(rgb, gains, mask, options, progress, band_pixels: int = 1 << 20):
@@ -577,10 +595,18 @@ def _fit_in_bands(rgb, gains, mask, options, progress, band_pixels: int = 1 << 2
         from tqdm.auto import tqdm
 
         bands = tqdm(bands, desc="fitting bands", unit="band")
+    # Black and clipped pixels are judged on the camera's values, before the white balance divides them
+    # (a red gain below 1 would otherwise call bright skin saturated).
+    black_level, saturation_level = options.pop("black_level", 1e-4), options.pop("saturation_level", 0.999)
     for top in bands:
-        part = fit_pixels(
-            rgb[top : top + rows] / gains, mask=None if mask is None else mask[top : top + rows], progress=False, **options
-        )
+        raw = rgb[top : top + rows]
+        screened = _screen(raw.reshape(-1, 3), None, black_level, saturation_level)[0].reshape(raw.shape[:2])
+        clipped = (screened == PixelStatus.BLACK) | (screened == PixelStatus.SATURATED)
+        band_mask = None if mask is None else np.asarray(mask[top : top + rows]) > 0
+        if clipped.any():
+            band_mask = ~clipped if band_mask is None else band_mask & ~clipped
+        part = fit_pixels(raw / gains, mask=band_mask, progress=False, black_level=0.0, saturation_level=np.inf, **options)
+        part["status"] = np.where(clipped, screened, part["status"]).astype(part["status"].dtype)
         part["fitted_rgb"] = part["fitted_rgb"] * gains
         if maps is None:
             maps = {k: np.zeros((h, w, *v.shape[2:]), np.float32 if v.dtype == np.float64 else v.dtype) for k, v in part.items()}
@@ -604,7 +630,8 @@ def render_maps(
     melanin_blend=0.7,
     illuminant: str = DEFAULT_ILLUMINANT,
     chunk_size: int = 65536,
-    method: str = "diffusion",
+    method: str | None = None,
+    model: SkinModel | None = None,
 ) -> np.ndarray:
     """Linear sRGB (h, w, 3) of parameter maps through the exact forward model and camera model.
 
@@ -615,8 +642,9 @@ def render_maps(
     blend = np.broadcast_to(np.asarray(melanin_blend, dtype=float), melanin.shape)
     columns = np.stack([np.clip(a, 0.0, 1.0).ravel() for a in (melanin, blend, haemoglobin)], axis=-1)
     weights = jnp.asarray(linear_srgb_weights(COLOUR_WAVELENGTHS_NM, illuminant))
+    model = model_with_options(model, method=method)
     (rgb,) = map_batches(
-        lambda c: (params_rgb(c, weights, method),), (columns,), pad_size(len(columns), chunk_size)
+        lambda c: (params_rgb(c, weights, model),), (columns,), pad_size(len(columns), chunk_size)
     )
     return shading[..., None] * rgb.reshape(*melanin.shape, 3)
 

@@ -61,3 +61,62 @@ def read_nist(path: str | Path) -> NistSpectra:
     if not subjects:
         raise SkinfitInputError(f"{path}: no 'Average' columns found")
     return NistSpectra(data[:, 0], tuple(subjects), np.stack(repeats), np.stack(average))
+
+
+@dataclasses.dataclass(frozen=True)
+class ArchiveSpectra:
+    """Spectra of a multi-subject archive (e.g. the International Skin Spectra Archive, ISSA).
+
+    Attributes:
+        wavelengths_nm: (m,)
+        reflectance: (n, m) reflectance factor (0-1); NaN where a record has no value.
+        records: (n,) per-spectrum metadata, a dict each (origin, subject, ethnic_group, body_site, ...).
+        subjects: (n,) subject label of each spectrum (origin and subject number: numbers restart per origin).
+    """
+
+    wavelengths_nm: np.ndarray
+    reflectance: np.ndarray
+    records: tuple[dict, ...]
+    subjects: np.ndarray
+
+    def select(self, keep: np.ndarray) -> "ArchiveSpectra":
+        keep = np.asarray(keep)
+        return ArchiveSpectra(self.wavelengths_nm, self.reflectance[keep], tuple(np.asarray(self.records, dtype=object)[keep]),
+                              self.subjects[keep])
+
+    def complete(self, wavelengths_nm) -> "ArchiveSpectra":
+        """The spectra with a value at every one of ``wavelengths_nm``, restricted to them."""
+        at = [int(np.flatnonzero(np.isclose(self.wavelengths_nm, w))[0]) for w in wavelengths_nm]
+        values = self.reflectance[:, at]
+        keep = np.all(np.isfinite(values), axis=1)
+        picked = self.select(keep)
+        return dataclasses.replace(picked, wavelengths_nm=np.asarray(wavelengths_nm, dtype=float), reflectance=values[keep])
+
+
+#: Face sites of the ISSA body-site labels.
+FACE_SITES = ("cheek", "cheek bone", "chin", "forehead", "nose tip")
+
+
+def read_issa(path: str | Path) -> ArchiveSpectra:
+    """Read the ISSA layout (Lu et al. 2025, Sci. Data, DOI 10.1038/s41597-025-04857-5): one record
+    per row with columns ``record, origin, subject, ethnic_group, gender, age_group, body_site,
+    specular``, then one column per wavelength in nm (reflectance factor 0-1; empty: no value)."""
+    path = Path(path)
+    try:
+        rows = list(csv.reader(path.read_text(encoding="utf-8").splitlines()))
+    except OSError as err:
+        raise SkinfitInputError(f"cannot read {path}: {err.strerror}") from None
+    if not rows:
+        raise SkinfitInputError(f"{path} is empty")
+    header = rows[0]
+    spectral = [i for i, h in enumerate(header) if h.strip().replace(".", "", 1).isdigit()]
+    meta = [i for i in range(len(header)) if i not in spectral]
+    if not spectral or "subject" not in header:
+        raise SkinfitInputError(f"{path}: not the ISSA layout (metadata columns, then one column per wavelength)")
+    try:
+        values = np.array([[float(r[i]) if i < len(r) and r[i].strip() else np.nan for i in spectral] for r in rows[1:]])
+    except ValueError as err:
+        raise SkinfitInputError(f"{path}: non-numeric reflectance ({err})") from None
+    records = tuple({header[i]: (r[i] if i < len(r) else "") for i in meta} for r in rows[1:])
+    subjects = np.array([f"{rec.get('origin', '')}:{rec['subject']}" for rec in records])
+    return ArchiveSpectra(np.array([float(header[i]) for i in spectral]), values, records, subjects)

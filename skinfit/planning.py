@@ -34,10 +34,13 @@ import jax.numpy as jnp
 import numpy as np
 
 from . import chromophores as chrom
-from .colorimetry import DEFAULT_ILLUMINANT, linear_srgb_weights
-from .hankel import HankelQuadrature
-from .params import SkinParams
-from ._validate import SkinfitInputError
+from .colorimetry import DEFAULT_ILLUMINANT, delta_e2000, linear_srgb_to_lab, linear_srgb_weights
+from .hankel import HankelQuadrature, inverse_kernel
+from .params import PRESET_NAMES, SkinParams, preset
+from .profiles import _skin_profile, captured_reflectance
+from .reflectance import _skin_reflectance, diffuse_reflectance, model_with_options
+from .skin_model import SkinModel, resolve_model
+from ._validate import SkinfitInputError, check_range
 
 #: Uniform wavelength grids the RGB planner tries (nm): every start, end and step that fit together.
 RGB_STARTS_NM = (380.0, 400.0, 410.0, 420.0, 430.0, 440.0)
@@ -135,11 +138,12 @@ class Plan:
         return "\n".join(lines)
 
 
-def plan(request: Request | None = None, params: SkinParams | None = None, **request_fields) -> Plan:
+def plan(request: Request | None = None, params: SkinParams | None = None, *, model: SkinModel | None = None,
+         **request_fields) -> Plan:
     """The smallest computation for ``request`` (or a ``Request`` built from keyword arguments).
 
-    ``params`` (concrete) lets the planner check whether profiles are wider than a pixel; without
-    them a requested profile is always computed.
+    ``params`` (concrete) lets the planner check whether profiles are wider than a pixel, for
+    ``model`` (default: the package default); without them a requested profile is always computed.
     """
     if request is None:
         request = Request(**request_fields)
@@ -165,16 +169,16 @@ def plan(request: Request | None = None, params: SkinParams | None = None, **req
     else:
         notes.append("RGB: not requested")
 
-    model = np.unique(np.concatenate([spectral, colour_grid]))
-    spectral_index = tuple(np.searchsorted(model, spectral).tolist()) if spectral.size else None
-    colour_index = tuple(np.searchsorted(model, colour_grid).tolist()) if colour_grid.size else None
+    model_grid = np.unique(np.concatenate([spectral, colour_grid]))
+    spectral_index = tuple(np.searchsorted(model_grid, spectral).tolist()) if spectral.size else None
+    colour_index = tuple(np.searchsorted(model_grid, colour_grid).tolist()) if colour_grid.size else None
 
     radii = None
     if not request.profiles:
         notes.append("profiles: not requested (no Hankel quadrature, reflectance at q = 0 only)")
     else:
         inner = 0.5 * request.pixel_footprint_mm if request.pixel_footprint_mm is not None else 1e-3
-        kept = None if params is None else _energy_within(params, model, inner)
+        kept = None if params is None else _energy_within(params, model_grid, inner, resolve_model(model))
         if kept is not None and kept >= 1.0 - request.energy_tolerance:
             notes.append(
                 f"profiles: not needed: at most {100 * max(1.0 - kept, 0.0):.2g} % of the energy lies beyond half the "
@@ -184,14 +188,14 @@ def plan(request: Request | None = None, params: SkinParams | None = None, **req
             radii = tuple(np.geomspace(inner, request.max_radius_mm, int(request.profile_radii)).tolist())
             why = "" if kept is None else f"; {100 * (1.0 - kept):.2g} % of the energy lies beyond {inner:g} mm"
             notes.append(
-                f"profiles: {len(radii)} radii {inner:g}-{request.max_radius_mm:g} mm at {model.size} wavelengths{why}"
+                f"profiles: {len(radii)} radii {inner:g}-{request.max_radius_mm:g} mm at {model_grid.size} wavelengths{why}"
             )
     if request.derivatives:
         notes.append(f"derivatives: forward mode, {len(DERIVATIVE_NAMES)} tangents ({', '.join(DERIVATIVE_NAMES)})")
     else:
         notes.append("derivatives: not requested")
     colour = tuple(colour_grid.tolist()) if colour_grid.size else None
-    return Plan(request, tuple(model.tolist()), spectral_index, colour_index, colour, error, radii, tuple(notes))
+    return Plan(request, tuple(model_grid.tolist()), spectral_index, colour_index, colour, error, radii, tuple(notes))
 
 
 @dataclasses.dataclass(frozen=True)
@@ -215,32 +219,27 @@ class Result:
     derivatives: dict | None = None
 
 
-def evaluate(plan: Plan, params: SkinParams, *, adding: str = "directional", **model_options) -> Result:
-    """Run ``plan`` for ``params`` (any batch shape); ``adding`` and ``model_options``
-    (blood_oxygenation, epidermis_thickness_mm, ior, scattering_scale) as in ``diffuse_reflectance``.
+def evaluate(plan: Plan, params: SkinParams, *, model: SkinModel | None = None, scattering_scale=1.0, **model_options) -> Result:
+    """Run ``plan`` for ``params`` (any batch shape); ``model`` and its overrides (``model_options``:
+    adding, blood_oxygenation, epidermis_thickness_mm, ior) as in ``diffuse_reflectance``.
 
-    The plan compiles to one program (cached per plan and adding mode): a reflectance-only plan
-    is a single dispatch of the q = 0 model.
+    The plan compiles to one program (cached per plan; the model's constants are traced): a
+    reflectance-only plan is a single dispatch of the q = 0 model.
     """
-    from .reflectance import SKIN_OPTION_DEFAULTS, _skin_options
-
     if not isinstance(params, SkinParams):
         raise SkinfitInputError("params must be skinfit.SkinParams")
-    lam = np.asarray(plan.model_wavelengths_nm)
-    options = _skin_options(adding, **{**SKIN_OPTION_DEFAULTS, **model_options}, like=(jnp.asarray(lam), params))
-    outputs = _program(plan, adding)(params, *options)
+    model = model_with_options(model, **model_options)
+    check_range("scattering_scale", scattering_scale, 1e-3, 1e3)
+    dtype = jnp.result_type(params.melanin, params.melanin_blend, params.haemoglobin)
+    outputs = _program(plan)(params, model, jnp.asarray(scattering_scale, dtype))
     radii = None if plan.radii_mm is None else np.asarray(plan.radii_mm)
     return Result(outputs.get("reflectance"), outputs.get("rgb"), radii, outputs.get("profiles"), outputs.get("rgb_profiles"),
                   outputs.get("derivatives"))
 
 
 @functools.lru_cache(maxsize=32)
-def _program(plan: Plan, adding: str):
-    """The plan as one jitted function of (params, *options) -> dict of outputs."""
-    from .hankel import inverse_kernel
-    from .profiles import _skin_profile
-    from .reflectance import _skin_reflectance
-
+def _program(plan: Plan):
+    """The plan as one jitted function of (params, model, scattering_scale) -> dict of outputs."""
     request = plan.request
     lam_host = np.asarray(plan.model_wavelengths_nm)
     spectral = None if plan.spectral_index is None else np.asarray(plan.spectral_index)
@@ -248,9 +247,9 @@ def _program(plan: Plan, adding: str):
     colour = None if colour_index is None else np.asarray(linear_srgb_weights(plan.colour_wavelengths_nm, request.illuminant))
     kernel = None if plan.radii_mm is None else inverse_kernel(np.asarray(plan.radii_mm), HankelQuadrature())
 
-    def values(params, options):
-        lam = jnp.asarray(lam_host, options[0].dtype)
-        r = _skin_reflectance(params, lam, adding, *options)
+    def values(params, model, scale):
+        lam = jnp.asarray(lam_host, scale.dtype)
+        r = _skin_reflectance(params, lam, model, scale)
         out = {}
         if spectral is not None:
             out["reflectance"] = r[..., spectral]
@@ -258,17 +257,17 @@ def _program(plan: Plan, adding: str):
             out["rgb"] = r[..., colour_index] @ jnp.asarray(colour, r.dtype).T
         return out
 
-    @jax.jit
-    def run(params, *options):
-        out = values(params, options)
+    @eqx.filter_jit
+    def run(params, model, scale):
+        out = values(params, model, scale)
         if request.derivatives:
             out["derivatives"] = {
-                name: jax.jvp(lambda p: values(p, options), (params,), (_unit_tangent(params, name),))[1] for name in DERIVATIVE_NAMES
+                name: jax.jvp(lambda p: values(p, model, scale), (params,), (_unit_tangent(params, name),))[1] for name in DERIVATIVE_NAMES
             }
         if kernel is not None:
-            lam = jnp.asarray(lam_host, options[0].dtype)
+            lam = jnp.asarray(lam_host, scale.dtype)
             radii = np.asarray(plan.radii_mm)
-            profiles = _skin_profile(params, lam, radii, *kernel, adding, *options, True)
+            profiles = _skin_profile(params, lam, radii, *kernel, model, True, scale)
             if spectral is not None:
                 out["profiles"] = profiles[..., spectral, :]
             if colour is not None:
@@ -297,9 +296,6 @@ def rgb_wavelengths(illuminant: str = DEFAULT_ILLUMINANT, tolerance: float = 0.1
 
 @functools.lru_cache(maxsize=16)
 def _rgb_wavelengths(illuminant, tolerance):
-    from .colorimetry import delta_e2000, linear_srgb_to_lab
-    from .reflectance import diffuse_reflectance
-
     fine = np.arange(360.0, 831.0, 1.0)
     spectra = np.asarray(diffuse_reflectance(probe_params(), jnp.asarray(fine)))
 
@@ -323,20 +319,15 @@ def _rgb_wavelengths(illuminant, tolerance):
 def probe_params() -> SkinParams:
     """Parameter sets the planner's colour error is measured on: a 6 x 3 x 6 grid over melanin
     0.001-0.5 (log), blend 0-1 and haemoglobin 0.001-0.3 (log), plus the three presets."""
-    from .params import PRESET_NAMES, preset
-
     c_m, beta, c_h = np.meshgrid(np.geomspace(1e-3, 0.5, 6), [0.0, 0.5, 1.0], np.geomspace(1e-3, 0.3, 6), indexing="ij")
     presets = [preset(name) for name in PRESET_NAMES]
     field = lambda grid, name: np.concatenate([grid.ravel(), [float(getattr(p, name)) for p in presets]])  # noqa: E731
     return SkinParams(field(c_m, "melanin"), field(beta, "melanin_blend"), field(c_h, "haemoglobin"))
 
 
-def _energy_within(params: SkinParams, wavelengths, radius_mm: float) -> float:
+def _energy_within(params: SkinParams, wavelengths, radius_mm: float, model: SkinModel) -> float:
     """Smallest fraction (over parameters and wavelengths) of the profile energy within ``radius_mm``."""
-    from .profiles import captured_reflectance
-    from .reflectance import diffuse_reflectance
-
     lam = jnp.asarray(wavelengths)
-    total = diffuse_reflectance(params, lam)
-    inside = captured_reflectance(params, lam, radius_mm, quadrature=HankelQuadrature())
+    total = diffuse_reflectance(params, lam, model=model)
+    inside = captured_reflectance(params, lam, radius_mm, model=model, quadrature=HankelQuadrature())
     return float(jnp.min(inside / jnp.maximum(total, jnp.finfo(total.dtype).tiny)))

@@ -22,19 +22,20 @@ from jaxtyping import Array, ArrayLike, Float
 
 from .adding import Adding
 from .hankel import HankelQuadrature, check_radii, energy_kernel, inverse_kernel
-from .layers import BLOOD_OXYGENATION, EPIDERMIS_THICKNESS_MM, SKIN_IOR, Layer
+from .layers import Layer
 from .multipole import dipole_energy, dipole_profile, dipole_transfer
 from ._validate import SkinfitInputError
 from .params import SkinParams
 from .reflectance import (
     _check_options,
-    _skin_options,
-    _skin_stack,
     _check_stack,
     _checked_wavelengths,
+    model_with_options,
     normal_fresnel_reflectance,
+    skin_stack_reflectance,
     stack_transfer,
 )
+from .skin_model import Diffusion, SkinModel
 
 
 def layered_profile(
@@ -63,15 +64,16 @@ def profile(
     wavelengths_nm: ArrayLike,
     radii_mm: ArrayLike,
     *,
-    adding: Adding = "directional",
-    blood_oxygenation: ArrayLike = BLOOD_OXYGENATION,
-    epidermis_thickness_mm: ArrayLike = EPIDERMIS_THICKNESS_MM,
-    ior: ArrayLike = SKIN_IOR,
+    model: SkinModel | None = None,
+    adding: Adding | None = None,
+    blood_oxygenation: ArrayLike | None = None,
+    epidermis_thickness_mm: ArrayLike | None = None,
+    ior: ArrayLike | None = None,
     scattering_scale: ArrayLike = 1.0,
     entry_fresnel: bool = False,
     quadrature: HankelQuadrature = HankelQuadrature(),
-    method: str = "diffusion",
-    anisotropy: ArrayLike = 0.8,
+    method: str | None = None,
+    anisotropy: ArrayLike | None = None,
 ) -> Float[Array, "*batch n_wavelengths n_radii"]:
     """Radial diffusion profile of skin, R(r, lambda) in mm^-2.
 
@@ -79,43 +81,39 @@ def profile(
         params: ``SkinParams`` of batch shape (...).
         wavelengths_nm: 1-D wavelengths in nm.
         radii_mm: 1-D radii in mm (concrete values, >= 0).
+        model: ``SkinModel`` (default: the calibrated package default). With a ``Transport``
+            method the multipole profile's shape is rescaled per wavelength so that it integrates
+            to the transport-exact total: "energy-corrected", not a transport-exact shape.
         entry_fresnel: multiply by (1 - F0) so the profile integrates to ``diffuse_reflectance``
             instead of R12(0).
         quadrature: ``HankelQuadrature`` settings (accuracy against cost).
-        method: ``"diffusion"`` (default) or ``"transport"``: the diffusion profile's shape
-            rescaled per wavelength so that it integrates to the transport-exact total
-            (``diffuse_reflectance(..., method="transport")``): "energy-corrected", not a
-            transport-exact shape.
-        anisotropy: Henyey-Greenstein g of both layers for ``method="transport"``.
-        Other options as in ``diffuse_reflectance``.
+        Other options (overrides of the model) as in ``diffuse_reflectance``.
 
     Returns:
         Array of shape (..., n_wavelengths, n_radii).
     """
     lam = _checked_wavelengths(wavelengths_nm)
-    options = _skin_options(adding, blood_oxygenation, epidermis_thickness_mm, ior, scattering_scale, like=(lam, params))
+    model = model_with_options(model, adding=adding, blood_oxygenation=blood_oxygenation,
+                               epidermis_thickness_mm=epidermis_thickness_mm, ior=ior, method=method, anisotropy=anisotropy)
     radii = check_radii(radii_mm)
     q, kernel = inverse_kernel(radii, quadrature)
-    shape = _skin_profile(params, lam, radii, q, kernel, adding, *options, bool(entry_fresnel))
-    if method == "diffusion":
-        return shape
-    if method != "transport":
-        raise SkinfitInputError(f"method must be 'diffusion' or 'transport', got {method!r}")
-    from .reflectance import diffuse_reflectance
-
-    model = dict(adding=adding, blood_oxygenation=blood_oxygenation, epidermis_thickness_mm=epidermis_thickness_mm, ior=ior,
-                 scattering_scale=scattering_scale)
-    exact = diffuse_reflectance(params, lam, method="transport", anisotropy=anisotropy, **model)
-    return shape * (exact / diffuse_reflectance(params, lam, **model))[..., None]
+    return _skin_profile(params, lam, radii, q, kernel, model, bool(entry_fresnel), jnp.asarray(scattering_scale))
 
 
 @eqx.filter_jit
-def _skin_profile(
-    params, lam, radii, q, kernel, adding, blood_oxygenation, epidermis_thickness_mm, ior, scattering_scale, entry_fresnel
-):
-    layers = _skin_stack(params, lam, blood_oxygenation, epidermis_thickness_mm, ior, scattering_scale)
+def _skin_profile(params, lam, radii, q, kernel, model, entry_fresnel, scattering_scale=1.0):
+    layers = model.layers(params, lam, scattering_scale=scattering_scale)
     one = jnp.ones((), lam.dtype)
-    return _profile(layers, radii, q, kernel, adding, one, one, entry_fresnel)
+    adding = model.method.adding if isinstance(model.method, Diffusion) else "directional"
+    shape = _profile(layers, radii, q, kernel, adding, one, one, entry_fresnel)
+    return shape * _energy_correction(layers, model.method)[..., None]
+
+
+def _energy_correction(layers, method):
+    """1 for diffusion; transport's total over diffusion's for a transport model (per wavelength)."""
+    if isinstance(method, Diffusion):
+        return jnp.ones_like(layers[0].absorption)
+    return skin_stack_reflectance(*layers, method) / skin_stack_reflectance(*layers, Diffusion())
 
 
 @eqx.filter_jit
@@ -138,10 +136,11 @@ def captured_reflectance(
     wavelengths_nm: ArrayLike,
     port_radius_mm: float,
     *,
-    adding: Adding = "directional",
-    blood_oxygenation: ArrayLike = BLOOD_OXYGENATION,
-    epidermis_thickness_mm: ArrayLike = EPIDERMIS_THICKNESS_MM,
-    ior: ArrayLike = SKIN_IOR,
+    model: SkinModel | None = None,
+    adding: Adding | None = None,
+    blood_oxygenation: ArrayLike | None = None,
+    epidermis_thickness_mm: ArrayLike | None = None,
+    ior: ArrayLike | None = None,
     scattering_scale: ArrayLike = 1.0,
     quadrature: HankelQuadrature = HankelQuadrature(),
 ) -> Float[Array, "*batch n_wavelengths"]:
@@ -149,20 +148,28 @@ def captured_reflectance(
 
     (1 - F0) int_0^a 2 pi r R(r) dr: what an integrating sphere with a port of radius a collects
     when the illumination spot is small compared with the port (MODEL.md 13). Light that travels
-    sideways beyond the port is lost; as a -> inf this tends to ``diffuse_reflectance``.
+    sideways beyond the port is lost; as a -> inf this tends to ``diffuse_reflectance``. With a
+    transport model the profile is energy-corrected (see ``profile``).
     """
     lam = _checked_wavelengths(wavelengths_nm)
-    options = _skin_options(adding, blood_oxygenation, epidermis_thickness_mm, ior, scattering_scale, like=(lam, params))
+    model = model_with_options(model, adding=adding, blood_oxygenation=blood_oxygenation,
+                               epidermis_thickness_mm=epidermis_thickness_mm, ior=ior)
     if not (np.isfinite(port_radius_mm) and port_radius_mm > 0):
         raise SkinfitInputError("port_radius_mm must be a finite radius > 0 mm")
     q, weights = energy_kernel(port_radius_mm, quadrature)
-    return _skin_captured(params, lam, jnp.asarray(port_radius_mm, lam.dtype), q, weights, adding, *options)
+    return _skin_captured(params, lam, jnp.asarray(port_radius_mm, lam.dtype), q, weights, model, jnp.asarray(scattering_scale))
 
 
 @eqx.filter_jit
-def _skin_captured(params, lam, radius, q, weights, adding, blood_oxygenation, epidermis_thickness_mm, ior, scattering_scale):
-    layers = _skin_stack(params, lam, blood_oxygenation, epidermis_thickness_mm, ior, scattering_scale)
-    return _captured(layers, radius, q, weights, adding)
+def _skin_captured(params, lam, radius, q, weights, model, scattering_scale=1.0):
+    layers = model.layers(params, lam, scattering_scale=scattering_scale)
+    return captured_of_layers(layers, radius, q, weights, model.method)
+
+
+def captured_of_layers(layers, radius, q, weights, method):
+    """What a port of ``radius`` captures of the stack's diffuse reflectance, by ``method``."""
+    adding = method.adding if isinstance(method, Diffusion) else "directional"
+    return _captured(layers, radius, q, weights, adding) * _energy_correction(layers, method)
 
 
 def _captured(layers, radius, q, weights, adding):

@@ -21,37 +21,12 @@ from jaxtyping import Array, ArrayLike, Float
 from . import chromophores as chrom
 from . import _validate
 from .adding import ADDING_MODES, Adding, stack_reflectance
-from .layers import BLOOD_OXYGENATION, EPIDERMIS_THICKNESS_MM, SKIN_ANISOTROPY, SKIN_IOR, Layer, skin_layers
+from .fresnel import fresnel_reflectance, normal_fresnel_reflectance  # noqa: F401 - part of this module's API
+from .layers import SKIN_ANISOTROPY, Layer
 from .multipole import slab_response
 from .params import SkinParams
-
-
-#: The skin-model options of ``diffuse_reflectance`` at their DJ2006 values.
-SKIN_OPTION_DEFAULTS = {
-    "blood_oxygenation": BLOOD_OXYGENATION,
-    "epidermis_thickness_mm": EPIDERMIS_THICKNESS_MM,
-    "ior": SKIN_IOR,
-    "scattering_scale": 1.0,
-}
-
-
-def fresnel_reflectance(cos_incidence: ArrayLike, n_from: ArrayLike, n_to: ArrayLike) -> Float[Array, "..."]:
-    """Unpolarised Fresnel reflectance for light in index ``n_from`` meeting a face into ``n_to``
-    at incidence cosine ``cos_incidence`` (in [0, 1]); 1 beyond the critical angle (NaN-free)."""
-    c = jnp.clip(jnp.asarray(cos_incidence), 0.0, 1.0)
-    n_from, n_to = jnp.asarray(n_from), jnp.asarray(n_to)
-    sin_t2 = (n_from / n_to) ** 2 * (1.0 - c * c)
-    total = sin_t2 >= 1.0
-    cos_t = jnp.sqrt(jnp.where(total, 0.5, 1.0 - sin_t2))
-    rs = ((n_from * c - n_to * cos_t) / (n_from * c + n_to * cos_t)) ** 2
-    rp = ((n_from * cos_t - n_to * c) / (n_from * cos_t + n_to * c)) ** 2
-    return jnp.where(total, 1.0, 0.5 * (rs + rp))
-
-
-def normal_fresnel_reflectance(n_inside: ArrayLike, n_outside: ArrayLike = 1.0) -> Float[Array, "..."]:
-    """Fresnel reflectance at normal incidence, ((n1 - n2) / (n1 + n2))^2."""
-    n_inside, n_outside = jnp.asarray(n_inside), jnp.asarray(n_outside)
-    return jnp.square((n_inside - n_outside) / (n_inside + n_outside))
+from .skin_model import Diffusion, SkinModel, Transport, resolve_model
+from .transport import transport_reflectance
 
 
 def stack_transfer(
@@ -133,8 +108,6 @@ def layered_reflectance(
     layers = _check_stack(layers)
     _check_method(method)
     if method == "transport":
-        from .transport import transport_reflectance
-
         _validate.check_range("ior_above", ior_above, 1.0, 3.0)
         return transport_reflectance(layers, ior_above=float(np.asarray(ior_above)), streams=streams)
     _check_options(adding)
@@ -156,98 +129,87 @@ def diffuse_reflectance(
     params: SkinParams,
     wavelengths_nm: ArrayLike,
     *,
-    adding: Adding = "directional",
-    blood_oxygenation: ArrayLike = BLOOD_OXYGENATION,
-    epidermis_thickness_mm: ArrayLike = EPIDERMIS_THICKNESS_MM,
-    ior: ArrayLike = SKIN_IOR,
+    model: SkinModel | None = None,
+    adding: Adding | None = None,
+    blood_oxygenation: ArrayLike | None = None,
+    epidermis_thickness_mm: ArrayLike | None = None,
+    ior: ArrayLike | None = None,
     scattering_scale: ArrayLike = 1.0,
-    method: str = "diffusion",
-    anisotropy: ArrayLike = SKIN_ANISOTROPY,
-    streams: int = 16,
+    method: str | None = None,
+    anisotropy: ArrayLike | None = None,
+    streams: int | None = None,
 ) -> Float[Array, "*batch n_wavelengths"]:
     """Diffuse reflectance of skin at normal incidence (specular excluded, entry Fresnel included).
 
     Args:
         params: ``SkinParams``; fields of batch shape (...) broadcast.
         wavelengths_nm: 1-D wavelengths in nm, within 250-1000 nm (the haemoglobin table).
-        adding: ``"directional"`` (default) or ``"symmetric"``.
-        blood_oxygenation: gamma, HbO2 fraction of the blood (DJ2006: 0.75).
-        epidermis_thickness_mm: epidermis thickness in mm (DJ2006: 0.25).
-        ior: refractive index of both layers (DJ2006: 1.4).
-        scattering_scale: factor on the reduced scattering of both layers (DJ2006: 1).
-        method: ``"diffusion"`` (DJ2006, default) or ``"transport"`` (adding-doubling, exact 1-D
-            transport; ``ior`` must then be one concrete value).
-        anisotropy: Henyey-Greenstein g of both layers for ``method="transport"`` (default 0.8,
-            ``SKIN_ANISOTROPY``); the reduced scattering stays the input.
-        streams: quadrature directions per hemisphere for ``method="transport"``.
+        model: the ``SkinModel`` (constants and forward method); default ``SkinModel.default()``, the
+            calibrated model. ``SkinModel.dj2006()`` is Donner & Jensen 2006.
+        adding, blood_oxygenation, epidermis_thickness_mm, ior: override the model's value
+            (``adding`` applies to diffusion: ``"directional"`` or ``"symmetric"``).
+        scattering_scale: factor on the reduced scattering of both layers (1: the model's).
+        method: override the model's forward method: ``"diffusion"`` (DJ2005 multipole) or
+            ``"transport"`` (direct adding-doubling, the reference; ``ior`` must then be concrete).
+        anisotropy, streams: Henyey-Greenstein g (default 0.8) and quadrature directions of
+            ``method="transport"``.
 
     Returns:
         Array of shape (..., n_wavelengths): (1 - F0) R12(q = 0).
     """
     lam = _checked_wavelengths(wavelengths_nm)
-    _check_method(method)
-    options = _skin_options(adding, blood_oxygenation, epidermis_thickness_mm, ior, scattering_scale, like=(lam, params))
-    if method == "transport":
-        if not _validate.is_concrete(ior) or np.ndim(ior) != 0:
+    model = model_with_options(model, adding=adding, blood_oxygenation=blood_oxygenation,
+                               epidermis_thickness_mm=epidermis_thickness_mm, ior=ior, method=method,
+                               anisotropy=anisotropy, streams=streams)
+    _validate.check_range("scattering_scale", scattering_scale, 1e-3, 1e3)
+    return _skin_reflectance(params, lam, model, jnp.asarray(scattering_scale))
+
+
+def model_with_options(model: SkinModel | None, *, adding=None, blood_oxygenation=None, epidermis_thickness_mm=None,
+                       ior=None, method=None, anisotropy=None, streams=None) -> SkinModel:
+    """``model`` (default: the package default) with the keyword overrides of the public functions."""
+    model = resolve_model(model)
+    if adding is not None and adding not in ADDING_MODES:
+        raise _validate.SkinfitInputError(f"adding must be one of {', '.join(ADDING_MODES)}, got {adding!r}")
+    if method is not None:
+        _check_method(method)
+    for name, value in (("blood_oxygenation", blood_oxygenation), ("epidermis_thickness_mm", epidermis_thickness_mm), ("ior", ior)):
+        if value is not None:
+            model = model.replace(**{name: _validate.as_float_array(name, value)})
+    if method == "diffusion" or (method is None and adding is not None and isinstance(model.method, Diffusion)):
+        model = model.replace(method=Diffusion(adding or "directional"))
+    elif method == "transport":
+        if not _validate.is_concrete(model.ior) or np.unique(np.asarray(model.ior, dtype=float)).size != 1:
             raise _validate.SkinfitInputError("method='transport' needs one concrete ior for the skin")
-        _validate.check_range("anisotropy", anisotropy, -0.99, 0.99)
-        return _skin_reflectance_transport(params, lam, *options, anisotropy=jnp.asarray(anisotropy, lam.dtype),
-                                           streams=int(streams), ior_value=float(np.asarray(ior)))
-    return _skin_reflectance(params, lam, adding, *options)
-
-
-def _skin_reflectance_transport(params, lam, blood_oxygenation, epidermis_thickness_mm, ior, scattering_scale, *,
-                                anisotropy, streams: int, ior_value: float):
-    """``diffuse_reflectance(..., method="transport")`` after validation (usable under jit and in
-    fits: the options may be traced, the index ``ior_value`` is concrete)."""
-    from .transport import transport_reflectance
-
-    epidermis, dermis = (eqx.tree_at(lambda layer: layer.anisotropy, layer, jnp.broadcast_to(anisotropy, jnp.shape(layer.absorption)))
-                         for layer in _skin_stack(params, lam, blood_oxygenation, epidermis_thickness_mm, ior, scattering_scale))
-    return transport_reflectance([epidermis, dermis], streams=streams, ior=ior_value, semi_infinite=True)
-
-
-def _skin_stack(params, lam, blood_oxygenation, epidermis_thickness_mm, ior, scattering_scale):
-    """``skin_layers`` with the options in the order ``_skin_options`` returns them."""
-    return skin_layers(
-        params,
-        lam,
-        blood_oxygenation=blood_oxygenation,
-        epidermis_thickness_mm=epidermis_thickness_mm,
-        ior=ior,
-        scattering_scale=scattering_scale,
-    )
+        g = SKIN_ANISOTROPY if anisotropy is None else anisotropy
+        _validate.check_range("anisotropy", g, -0.99, 0.99)
+        if np.ndim(g) != 0:
+            raise _validate.SkinfitInputError("anisotropy must be one value")
+        model = model.replace(method=Transport(float(g), float(np.unique(np.asarray(model.ior, dtype=float))[0]),
+                                               int(streams or 16)))
+    return model.check()
 
 
 @eqx.filter_jit
-def _skin_reflectance(params, lam, adding, blood_oxygenation, epidermis_thickness_mm, ior, scattering_scale):
-    layers = _skin_stack(params, lam, blood_oxygenation, epidermis_thickness_mm, ior, scattering_scale)
-    r12 = stack_transfer(layers, 0.0, adding=adding)
-    return (1.0 - normal_fresnel_reflectance(ior[..., None])) * r12
+def _skin_reflectance(params, lam, model: SkinModel, scattering_scale=1.0):
+    """Diffuse reflectance (1 - F0) R12(0) of ``model`` (traced constants; the method is static)."""
+    epidermis, dermis = model.layers(params, lam, scattering_scale=scattering_scale)
+    return skin_stack_reflectance(epidermis, dermis, model.method)
+
+
+def skin_stack_reflectance(epidermis: Layer, dermis: Layer, method: Diffusion | Transport):
+    """(1 - F0) R12(0) of an epidermis over a semi-infinite dermis by ``method``."""
+    if isinstance(method, Diffusion):
+        r12 = stack_transfer([epidermis, dermis], 0.0, adding=method.adding)
+        return (1.0 - normal_fresnel_reflectance(epidermis.ior)) * r12
+    if method.table is not None:
+        return method.table.reflectance(epidermis.absorption, epidermis.reduced_scattering, epidermis.thickness,
+                                        dermis.absorption, dermis.reduced_scattering)
+    shape = jnp.broadcast_shapes(jnp.shape(epidermis.absorption), jnp.shape(dermis.absorption))
+    g = jnp.full(shape, method.anisotropy, jnp.result_type(epidermis.absorption))
+    layers = [eqx.tree_at(lambda layer: layer.anisotropy, layer, g) for layer in (epidermis, dermis)]
+    return transport_reflectance(layers, streams=method.streams, ior=method.ior, semi_infinite=True)
 
 
 def _checked_wavelengths(wavelengths_nm) -> jax.Array:
     return _validate.wavelengths(wavelengths_nm, low=chrom.WAVELENGTH_RANGE_NM[0], high=chrom.WAVELENGTH_RANGE_NM[1])
-
-
-def _skin_options(adding, blood_oxygenation, epidermis_thickness_mm, ior, scattering_scale, *, like):
-    """Validate the skin-model options; return the numeric ones as arrays (traced, not static, under jit).
-
-    They take the floating dtype of ``like`` (wavelengths and parameters), so float32 inputs compute
-    in float32.
-    """
-    _check_options(adding)
-    _validate.check_range("blood_oxygenation", blood_oxygenation, 0.0, 1.0)
-    _validate.check_range("epidermis_thickness_mm", epidermis_thickness_mm, 1e-9, 1e3, unit="mm")
-    _validate.check_range("ior", ior, 1.0, 3.0)
-    _validate.check_range("scattering_scale", scattering_scale, 1e-3, 1e3)
-    dtype = jnp.result_type(*jax.tree_util.tree_leaves(like))
-    return tuple(
-        _validate.as_float_array(name, value).astype(dtype)
-        for name, value in (
-            ("blood_oxygenation", blood_oxygenation),
-            ("epidermis_thickness_mm", epidermis_thickness_mm),
-            ("ior", ior),
-            ("scattering_scale", scattering_scale),
-        )
-    )

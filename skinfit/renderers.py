@@ -44,7 +44,7 @@ from .layers import SKIN_IOR
 from .multipole import dipole_energy
 from .params import SkinParams
 from .profiles import profile
-from .reflectance import diffuse_reflectance, normal_fresnel_reflectance
+from .reflectance import diffuse_reflectance, model_with_options, normal_fresnel_reflectance
 
 ENERGY_FRACTION = 0.997
 GAUSSIAN_TERMS = 6
@@ -131,16 +131,16 @@ def renderer_profiles(
     inside = _DENSE_RADII <= 2 * max_radius
     gaussians = {c: fit_gaussians(_DENSE_RADII[inside], dense_rgb[i, inside], albedo[i]) for i, c in enumerate(CHANNELS)}
     burley = {c: fit_burley(_DENSE_RADII[inside], dense_rgb[i, inside], albedo[i]) for i, c in enumerate(CHANNELS)}
-    ior = float(model_options.get("ior", SKIN_IOR))
+    ior = float(np.mean(np.asarray(model_with_options(model_options.get("model"), ior=model_options.get("ior")).ior)))
     median = [float(np.interp(0.5, np.maximum.accumulate(e), _DENSE_RADII)) for e in energy]
     medium = homogeneous_medium(albedo, np.array(median), ior)
 
     metadata = {
         "generator": f"skinfit {__version__}",
-        "model": "Donner & Jensen 2006 two-layer skin on the closed-form DJ2005 multipole",
+        "model": model_with_options(model_options.get("model")).description,
         "label": label,
         "parameters": {f: float(getattr(params, f)) for f in ("melanin", "melanin_blend", "haemoglobin")},
-        "options": {k: (v if isinstance(v, (str, float, int)) else repr(v)) for k, v in model_options.items()},
+        "options": {k: (v if isinstance(v, (str, float, int)) else repr(v)) for k, v in model_options.items() if k != "model"},
         "units": {"wavelength": "nm", "radius": "mm", "profile": "mm^-2", "coefficients": "mm^-1", "variance": "mm^2"},
         "rgb": f"linear sRGB, illuminant {illuminant}, CIE 1931 2 degree observer (white = 1)",
         "radius_range_mm": [float(radii[0]), float(radii[-1])],
@@ -357,7 +357,8 @@ def median_radius(params: SkinParams, wavelengths_nm=np.arange(400.0, 701.0, 10.
     return albedo, median
 
 
-def renderer_textures(maps: dict, *, illuminant: str = DEFAULT_ILLUMINANT, grid: int = 24, ior: float = SKIN_IOR) -> dict:
+def renderer_textures(maps: dict, *, illuminant: str = DEFAULT_ILLUMINANT, grid: int = 24, ior: float | None = None,
+                      model=None) -> dict:
     """Albedo and subsurface-radius textures from fitted maps (``melanin``, ``haemoglobin``,
     ``melanin_blend`` as (h, w) arrays, e.g. ``skinfit.fit_image(...).maps``).
 
@@ -368,6 +369,8 @@ def renderer_textures(maps: dict, *, illuminant: str = DEFAULT_ILLUMINANT, grid:
     """
     from .image_fit import render_maps
 
+    model = model_with_options(model, ior=ior)
+    ior = float(np.mean(np.asarray(model.ior)))
     melanin, haemoglobin = (np.asarray(maps[k], dtype=float) for k in ("melanin", "haemoglobin"))
     blend = float(np.median(np.asarray(maps.get("melanin_blend", 0.7), dtype=float)))
     if melanin.shape != haemoglobin.shape or melanin.ndim != 2:
@@ -377,14 +380,14 @@ def renderer_textures(maps: dict, *, illuminant: str = DEFAULT_ILLUMINANT, grid:
     axis_m = np.geomspace(c_m.min(), max(c_m.max(), c_m.min() * 1.001), grid)
     axis_h = np.geomspace(c_h.min(), max(c_h.max(), c_h.min() * 1.001), grid)
     mm, hh = np.meshgrid(axis_m, axis_h, indexing="ij")
-    table_albedo, table_median = median_radius(SkinParams(mm, blend, hh), illuminant=illuminant, ior=ior)
+    table_albedo, table_median = median_radius(SkinParams(mm, blend, hh), illuminant=illuminant, model=model)
     table_mfp = np.empty_like(table_median)
     for idx in np.ndindex(grid, grid):
         table_mfp[idx] = homogeneous_medium(table_albedo[idx], table_median[idx], ior)["mean_free_path_mm"]
     x = np.interp(np.log(c_m), np.log(axis_m), np.arange(grid))
     y = np.interp(np.log(c_h), np.log(axis_h), np.arange(grid))
     mfp = _bilinear(table_mfp, x, y)
-    albedo = render_maps(melanin, haemoglobin, np.ones_like(melanin), melanin_blend=blend, illuminant=illuminant)
+    albedo = render_maps(melanin, haemoglobin, np.ones_like(melanin), melanin_blend=blend, illuminant=illuminant, model=model)
     channels = {}
     for i, c in enumerate("RGB"):
         channels[f"albedo.{c}"] = albedo[..., i].astype(np.float32)

@@ -31,13 +31,16 @@ from __future__ import annotations
 
 import functools
 
-import jax
+import equinox as eqx
 import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, ArrayLike, Float
 
 from . import _validate
-from .layers import BLOOD_OXYGENATION, EPIDERMIS_THICKNESS_MM, SKIN_IOR
+from .fresnel import fresnel_reflectance
+from .fresnel import normal_fresnel_reflectance
+from .reflectance import _checked_wavelengths, model_with_options, skin_stack_reflectance
+from .skin_model import SkinModel
 from .params import SkinParams
 
 #: Beckmann RMS slope m (damlaren and the pbrt-v3 port: 0.35; pbrt-v2-skin 0.3).
@@ -50,8 +53,6 @@ _TINY = 1e-12
 
 def fresnel_dielectric(cos_incidence: ArrayLike, ior: ArrayLike) -> Float[Array, "..."]:
     """Unpolarised Fresnel reflectance from air into a dielectric of index ``ior`` (cosine >= 0)."""
-    from .reflectance import fresnel_reflectance
-
     return fresnel_reflectance(cos_incidence, 1.0, ior)
 
 
@@ -151,8 +152,6 @@ def _check_directions(name, value):
 
 def _checked(wavelengths_nm, roughness, surface_ior, **directions):
     """Validated wavelengths and directions (in the order given) of a surface-layer call."""
-    from .reflectance import _checked_wavelengths
-
     lam = _checked_wavelengths(wavelengths_nm)
     _validate.check_range("roughness", roughness, 1e-3, 2.0)
     _validate.check_range("surface_ior", surface_ior, 1.0 + 1e-6, 3.0)
@@ -186,39 +185,34 @@ def reflectance_factor(
     wi: ArrayLike,
     wo: ArrayLike,
     *,
+    model: SkinModel | None = None,
     roughness: ArrayLike = SURFACE_ROUGHNESS,
-    surface_ior: ArrayLike = SURFACE_IOR,
-    adding: str = "directional",
-    blood_oxygenation: ArrayLike = BLOOD_OXYGENATION,
-    epidermis_thickness_mm: ArrayLike = EPIDERMIS_THICKNESS_MM,
-    ior: ArrayLike = SKIN_IOR,
-    scattering_scale: ArrayLike = 1.0,
+    surface_ior: ArrayLike | None = None,
+    **model_options,
 ) -> Float[Array, "*batch n_wavelengths"]:
     """Radiance factor of a flat, uniformly lit patch: surface lobe plus subsurface light.
 
     beta = pi f_s(wi, wo) + (1 - rho(wi)) R12(0) (1 - rho(wo)) / (1 - rho_bar), with rho the
     lobe's directional albedo (oil included); 1 for a perfect white diffuser. Shape
-    (..., n_wavelengths); the skin-model options as in ``diffuse_reflectance``. ``roughness`` and
-    ``surface_ior`` are scalars here (rho is tabulated over 257 angles per call and interpolated).
+    (..., n_wavelengths); ``model`` and its overrides (``model_options``) as in ``diffuse_reflectance``;
+    ``surface_ior`` defaults to the model's. ``roughness`` and ``surface_ior`` are scalars here (rho
+    is tabulated over 257 angles per call and interpolated).
     """
-    from .reflectance import _skin_options
-
+    model = model_with_options(model, **model_options)
+    surface_ior = model.surface_ior if surface_ior is None else surface_ior
     lam, wi, wo = _checked(wavelengths_nm, roughness, surface_ior, wi=wi, wo=wo)
     if np.ndim(roughness) or np.ndim(surface_ior):
         raise _validate.SkinfitInputError("reflectance_factor takes a scalar roughness and surface_ior")
-    options = _skin_options(adding, blood_oxygenation, epidermis_thickness_mm, ior, scattering_scale, like=(lam, params))
-    return _reflectance_factor(params, lam, wi, wo, jnp.asarray(roughness), jnp.asarray(surface_ior), adding, options)
+    return _reflectance_factor(params, lam, wi, wo, jnp.asarray(roughness), jnp.asarray(surface_ior), model)
 
 
-@functools.partial(jax.jit, static_argnames=("adding",))
-def _reflectance_factor(params, lam, wi, wo, roughness, surface_ior, adding, options):
-    from .reflectance import _skin_stack, stack_transfer
-
+@eqx.filter_jit
+def _reflectance_factor(params, lam, wi, wo, roughness, surface_ior, model):
     dtype = jnp.result_type(lam, params.oil, wi, wo)
     wi, wo = wi.astype(dtype), wo.astype(dtype)
     roughness, surface_ior = roughness.astype(dtype), surface_ior.astype(dtype)
     oil = jnp.asarray(params.oil, dtype)
-    r12 = stack_transfer(_skin_stack(params, lam, *options), 0.0, adding=adding)  # (..., n_wavelengths)
+    r12 = _inside_reflectance(params, lam, model)  # (..., n_wavelengths)
     mu_grid, table = _albedo_table(roughness, surface_ior)
     rho_i = oil * jnp.interp(wi[..., 2], mu_grid, table, left=0.0)
     rho_o = oil * jnp.interp(wo[..., 2], mu_grid, table, left=0.0)
@@ -229,23 +223,28 @@ def _reflectance_factor(params, lam, wi, wo, roughness, surface_ior, adding, opt
     return specular[..., None] + (entry * exit_weight)[..., None] * r12
 
 
+def _inside_reflectance(params, lam, model):
+    """R12(0) of the model: the diffuse reflectance for light already inside (entry Fresnel undone)."""
+    epidermis, dermis = model.layers(params, lam)
+    return skin_stack_reflectance(epidermis, dermis, model.method) / (1.0 - normal_fresnel_reflectance(epidermis.ior))
+
+
 def surface_energy(
     params: SkinParams,
     wavelengths_nm: ArrayLike,
     wi: ArrayLike,
     *,
+    model: SkinModel | None = None,
     roughness: ArrayLike = SURFACE_ROUGHNESS,
-    surface_ior: ArrayLike = SURFACE_IOR,
+    surface_ior: ArrayLike | None = None,
     **model_options,
 ) -> tuple[Float[Array, "..."], Float[Array, "*batch n_wavelengths"]]:
     """(specular albedo rho(wi), subsurface albedo (1 - rho(wi)) R12(0)) for incidence ``wi``:
     the energy the patch reflects, split by path; their sum never exceeds 1."""
-    from .reflectance import SKIN_OPTION_DEFAULTS, _skin_options, _skin_stack, stack_transfer
-
+    model = model_with_options(model, **model_options)
+    surface_ior = model.surface_ior if surface_ior is None else surface_ior
     lam, wi = _checked(wavelengths_nm, roughness, surface_ior, wi=wi)
-    adding = model_options.pop("adding", "directional")
-    options = _skin_options(adding, **{**SKIN_OPTION_DEFAULTS, **model_options}, like=(lam, params))
-    r12 = stack_transfer(_skin_stack(params, lam, *options), 0.0, adding=adding)
+    r12 = _inside_reflectance(params, lam, model)
     dtype = r12.dtype
     rho = jnp.asarray(params.oil, dtype) * lobe_albedo(wi.astype(dtype), jnp.asarray(roughness, dtype), jnp.asarray(surface_ior, dtype))
     return rho, (1.0 - rho)[..., None] * r12

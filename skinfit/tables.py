@@ -18,9 +18,8 @@ from . import __version__
 from .colorimetry import DEFAULT_ILLUMINANT, linear_srgb_weights
 from .params import SkinParams
 from .hankel import HankelQuadrature
-from .layers import SKIN_IOR
 from .profiles import profile
-from .reflectance import diffuse_reflectance, normal_fresnel_reflectance
+from .reflectance import diffuse_reflectance, model_with_options, normal_fresnel_reflectance
 from ._validate import SkinfitInputError
 
 TABLE_FORMATS = (".csv", ".npz", ".exr")
@@ -69,17 +68,17 @@ def profile_table(
     spectral = np.asarray(profile(params, lam, radii, quadrature=quadrature, **model_options))
     reflectance = np.asarray(diffuse_reflectance(params, lam, **model_options))
     rgb = linear_srgb_weights(lam, illuminant) @ spectral
-    ior = float(model_options.get("ior", SKIN_IOR))
+    ior = float(np.mean(np.asarray(model_with_options(model_options.get("model"), ior=model_options.get("ior")).ior)))
     metadata = {
         "generator": f"skinfit {__version__}",
-        "model": "Donner & Jensen 2006 two-layer skin on the closed-form DJ2005 multipole",
+        "model": model_with_options(model_options.get("model")).description,
         "label": label,
         "parameters": {
             "melanin": float(params.melanin),
             "melanin_blend": float(params.melanin_blend),
             "haemoglobin": float(params.haemoglobin),
         },
-        "options": {k: (v if isinstance(v, (str, float, int)) else repr(v)) for k, v in model_options.items()},
+        "options": {k: (v if isinstance(v, (str, float, int)) else repr(v)) for k, v in model_options.items() if k != "model"},
         "quadrature": dataclasses.asdict(quadrature),
         "units": {"wavelength": "nm", "radius": "mm", "profile": "mm^-2"},
         "profile_normalisation": (

@@ -34,7 +34,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from .reflectance import fresnel_reflectance
+from .fresnel import fresnel_reflectance
 
 STREAMS = 16
 _FINITE_DOUBLINGS = 12

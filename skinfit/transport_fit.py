@@ -21,13 +21,15 @@ range, or when it is first-order optimal (``spectral_fit._stationarity``).
 
 from __future__ import annotations
 
+import functools
+
 import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
 
 from ._batching import map_batches, pad_size
-from .fit_variables import VARIABLES, MeasurementModel
+from .fit_variables import VARIABLES, stationarity
 from .transport import _solve
 
 #: Lock-step iterations between two gatherings of the unconverged spectra.
@@ -59,17 +61,17 @@ class BoundedPolish:
     would cost ~8 Jacobians of the transport spectrum per iteration; the secant update costs none.
     """
 
-    def __init__(self, model: MeasurementModel, wavelengths: tuple, weights: tuple, step_tol: float, stationarity_tol: float):
-        self.model = model
-        self.lam = jnp.asarray(wavelengths)
+    def __init__(self, free: tuple, wavelengths: tuple, weights: tuple, step_tol: float, stationarity_tol: float):
+        self.free = free
+        self.lam = np.asarray(wavelengths)
         self.w = jnp.asarray(weights)
-        self.low = jnp.array([VARIABLES[n].low for n in model.free])
-        self.span = jnp.array([VARIABLES[n].high - VARIABLES[n].low for n in model.free])
+        self.low = jnp.array([VARIABLES[n].low for n in free])
+        self.span = jnp.array([VARIABLES[n].high - VARIABLES[n].low for n in free])
         self.step_tol, self.stationarity_tol = step_tol, stationarity_tol
 
-    def _linearise(self, x, target):
+    def _linearise(self, measurement, x, target):
         def residual(z):
-            r = self.w * (self.model.spectrum_of_free(self.low + self.span * z, self.lam) - target)
+            r = measurement.residual_of_free(self.low + self.span * z, target, self.lam, self.w)
             return r, r
 
         jacobian, r = jax.jacfwd(residual, has_aux=True)(x)
@@ -98,16 +100,16 @@ class BoundedPolish:
         trial = jnp.clip(state.x + jnp.clip(step, -0.5, 0.5), 0.0, 1.0)
         return trial, 2.0 * jnp.where(use_secant, predicted, predicted_gn)
 
-    def _start(self, x, target, curvature):
-        r, jacobian = self._linearise(x, target)
+    def _start(self, measurement, x, target, curvature):
+        r, jacobian = self._linearise(measurement, x, target)
         cost = jnp.sum(r**2)
         return _State(x, r, jacobian, jnp.where(jnp.isfinite(cost), cost, jnp.inf), curvature,
                       jnp.asarray(_INITIAL_DAMPING, x.dtype), jnp.asarray(jnp.inf, x.dtype))
 
-    def _iterate(self, state: _State, target, count: int) -> _State:
+    def _iterate(self, measurement, state: _State, target, count: int) -> _State:
         def body(_, state):
             trial, predicted = self._trial(state)
-            r, jacobian = self._linearise(trial, target)
+            r, jacobian = self._linearise(measurement, trial, target)
             cost = jnp.sum(r**2)
             better = jnp.isfinite(cost) & (cost <= state.cost)
             gain = (state.cost - cost) / jnp.maximum(predicted, 1e-300)
@@ -122,28 +124,28 @@ class BoundedPolish:
         return jax.lax.fori_loop(0, count, body, state)
 
     def _converged(self, state: _State):
-        from .spectral_fit import _stationarity
-
         theta = self.low + self.span * state.x
         gradient = 2.0 * (state.jacobian / self.span).T @ state.residual
-        stationary = _stationarity(self.model.free, theta, gradient, state.cost) <= self.stationarity_tol
+        stationary = stationarity(self.free, theta, gradient, state.cost) <= self.stationarity_tol
         return (state.moved <= self.step_tol) | stationary
 
     @eqx.filter_jit
-    def _round(self, x, damping, curvature, target, fresh):
+    def _round(self, measurement, x, damping, curvature, target, fresh):
         """``ROUND_STEPS`` iterations for a batch; returns (x, damping, curvature, converged)."""
 
         def one(x, damping, curvature, target, fresh):
-            state = self._start(x, target, curvature)
+            state = self._start(measurement, x, target, curvature)
             state = eqx.tree_at(lambda s: s.damping, state, jnp.where(fresh, state.damping, damping))
-            state = self._iterate(state, target, ROUND_STEPS)
+            state = self._iterate(measurement, state, target, ROUND_STEPS)
             return state.x, state.damping, state.curvature, self._converged(state)
 
         return jax.vmap(one)(x, damping, curvature, target, fresh)
 
-    def run(self, theta0: np.ndarray, target: np.ndarray, max_steps: int, chunk_size: int, progress):
+    def run(self, measurement, theta0: np.ndarray, target: np.ndarray, max_steps: int, chunk_size: int, progress,
+            fixed_batch: bool = False):
         """Polish physical values ``theta0`` (n, f) against ``target`` (n, m); returns
-        (theta, iterations, converged)."""
+        (theta, iterations, converged). ``fixed_batch``: batches of exactly ``chunk_size`` (one
+        compiled program per problem; cheap models), else of the size that is left."""
         n = len(theta0)
         low, span = np.asarray(self.low), np.asarray(self.span)
         x = np.clip((theta0 - low) / span, 0.0, 1.0)
@@ -156,14 +158,24 @@ class BoundedPolish:
         for _ in range(max(1, -(-max_steps // ROUND_STEPS))):
             if not todo.size:
                 break
-            size = pad_size(todo.size, chunk_size)
+            # fixed_batch: every round in batches of chunk_size (padded), one compilation whatever is
+            # left; otherwise the batch shrinks with what is left (for costly direct transport)
+            size = chunk_size if fixed_batch else pad_size(todo.size, chunk_size)
+            rounds = lambda *a: self._round(measurement, *a)  # noqa: E731
             x[todo], damping[todo], curvature[todo], done[todo] = map_batches(
-                self._round, (x[todo], damping[todo], curvature[todo], target[todo], fresh[todo]), size, progress, "transport fit"
+                rounds, (x[todo], damping[todo], curvature[todo], target[todo], fresh[todo]), size, progress, "bounded fit"
             )
             fresh[todo] = False
             steps[todo] += ROUND_STEPS + 1
             todo = todo[~done[todo]]
         return low + span * x, steps, done
+
+
+@functools.lru_cache(maxsize=16)
+def bounded_polish(free: tuple, wavelengths: tuple, weights: tuple, step_tol: float, stationarity_tol: float) -> BoundedPolish:
+    """One ``BoundedPolish`` per problem: its compiled rounds serve every later call (the
+    measurement's values are arguments of them, not part of the instance)."""
+    return BoundedPolish(free, wavelengths, weights, step_tol, stationarity_tol)
 
 
 def _secant_update(curvature, step, jacobian, residual, new_jacobian, new_residual):

@@ -24,3 +24,12 @@ def light_fixture():
 @pytest.fixture
 def light():
     return skinfit.preset("light")
+
+
+#: Donner & Jensen 2006 (diffusion): the model of the published fixtures (MODEL.md).
+DJ2006 = skinfit.SkinModel.dj2006()
+
+
+@pytest.fixture
+def dj2006():
+    return DJ2006

@@ -6,9 +6,11 @@ import skinfit
 from skinfit.adding import add_below, stack_reflectance
 from skinfit.multipole import slab_response
 
+from .conftest import DJ2006
+
 
 def _skin_responses(light, wavelengths):
-    epidermis, dermis = skinfit.skin_layers(light, wavelengths)
+    epidermis, dermis = skinfit.skin_layers(light, wavelengths, model=DJ2006)
     top = slab_response(epidermis.absorption, epidermis.reduced_scattering, epidermis.thickness, 1.4, 1.0)
     bottom = slab_response(dermis.absorption, dermis.reduced_scattering, dermis.thickness, 1.0, 1.0)
     return top, bottom

@@ -7,6 +7,8 @@ import pytest
 
 from skinfit.colour_table import chromaticity, colour_table, model_rgb, spline_rgb
 
+from .conftest import DJ2006
+
 
 @pytest.fixture(scope="module")
 def table():
@@ -66,11 +68,11 @@ def test_transport_table_interpolates_the_transport_model():
     spline; on a coarse 17 x 17 table (the image-fit test's) the spline follows exact transport in
     linear sRGB (measured: max 1.4e-3 near the box edge, where the not-a-knot end conditions are
     weakest; 2.0e-4 on the default 33 x 33), and differs clearly from diffusion's colour."""
-    table = colour_table(0.7, nodes=17, inverse_cells=64, method="transport")
+    table = colour_table(0.7, nodes=17, inverse_cells=64, method="transport", model=DJ2006)
     roots = np.random.default_rng(2).uniform(0.0, 1.0, (64, 2))
     exact = np.asarray(model_rgb(jnp.asarray(roots), *table.model_arguments()))
     spline = np.asarray(spline_rgb(jnp.asarray(table.coefficients), jnp.asarray(roots))[0])
     assert np.max(np.abs(spline - exact)) < 3e-3
     assert np.median(np.abs(spline - exact)) < 2e-5
-    diffusion = np.asarray(model_rgb(jnp.asarray(roots), *table.model_arguments()[:-1], "diffusion"))
+    diffusion = np.asarray(model_rgb(jnp.asarray(roots), *table.model_arguments()[:-1], DJ2006))
     assert np.median(np.abs(diffusion - exact) / exact) > 0.1

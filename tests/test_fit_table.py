@@ -5,10 +5,11 @@ import numpy as np
 
 from skinfit.fit_table import build_fit_table
 from skinfit.fit_variables import CHROMOPHORES
-from skinfit.spectral_fit import _measurement_model
+from skinfit.skin_model import SkinModel
+from skinfit.spectral_fit import measurement_model
 
 WAVELENGTHS = tuple(np.arange(400.0, 701.0, 20.0).tolist())
-MODEL = _measurement_model(CHROMOPHORES, None, None, "directional")
+MODEL = measurement_model(SkinModel.dj2006(), CHROMOPHORES, None, None)
 
 
 def small_table(weights=None):

@@ -9,6 +9,8 @@ from skinfit.monte_carlo import monte_carlo_reflectance
 
 from .reference import semi_infinite_isotropic_albedo
 
+from .conftest import DJ2006
+
 
 @pytest.mark.parametrize("albedo", [0.5, 0.9])
 def test_matches_the_exact_semi_infinite_isotropic_albedo(albedo):
@@ -30,7 +32,7 @@ def test_a_non_absorbing_slab_returns_every_photon_that_entered():
 
 @pytest.mark.parametrize("name, g, published", [("light", 0.0, 0.3765), ("medium", 0.0, 0.0499), ("dark", 0.9, 0.0072)])
 def test_skin_stacks_agree_with_the_published_monte_carlo(name, g, published):
-    epidermis, dermis = skinfit.skin_layers(skinfit.preset(name), np.array([550.0]))
+    epidermis, dermis = skinfit.skin_layers(skinfit.preset(name), np.array([550.0]), model=DJ2006)
 
     def scalar(layer, thickness):
         return skinfit.Layer(absorption=float(np.ravel(layer.absorption)[0]), reduced_scattering=float(np.ravel(layer.reduced_scattering)[0]),

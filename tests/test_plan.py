@@ -2,12 +2,15 @@
 profiles narrower than a pixel are skipped only when they are, derivatives are right."""
 
 import jax
+import jax.numpy as jnp
 import numpy as np
 import pytest
 
 import skinfit
 from skinfit import planning as planner
 from skinfit.colorimetry import delta_e2000, linear_srgb_to_lab
+
+from .conftest import DJ2006
 
 WAVELENGTHS = tuple(np.arange(400.0, 701.0, 10.0))
 
@@ -30,14 +33,17 @@ def test_reflectance_only_plan_has_no_profile_work():
     assert not the_plan.computes_profiles and the_plan.radii_mm is None
     assert "profiles: not requested" in the_plan.describe()
     params = skinfit.SkinParams(np.array([0.02, 0.2]), 0.7, np.array([0.01, 0.05]))
-    options = [np.full(2, v) for v in (0.75, 0.25, 1.4, 1.0)]
-    # The compiled program never holds more than one value per (parameter set, wavelength): no
-    # frequency axis, no radii, no Hankel kernel. With profiles it does.
-    program = planner._program(the_plan, "directional")
-    assert _largest_intermediate(jax.make_jaxpr(program)(params, *options).jaxpr) <= 2 * len(WAVELENGTHS)
+    scale = jnp.asarray(1.0)
+    # The compiled program never holds more than one value per (parameter set, wavelength) on DJ2006's
+    # closed form, and 4^3 tricubic coefficients per value on the tabulated transport of the default
+    # model: no frequency axis, no radii, no Hankel kernel. With profiles it does.
+    program = planner._program(the_plan)
+    values = 2 * len(WAVELENGTHS)
+    assert _largest_intermediate(jax.make_jaxpr(program)(params, DJ2006, scale).jaxpr) <= values
+    assert _largest_intermediate(jax.make_jaxpr(program)(params, skinfit.SkinModel.default(), scale).jaxpr) <= 4**3 * values
     with_profiles = planner.plan(wavelengths_nm=WAVELENGTHS, profiles=True, profile_radii=8)
-    program = planner._program(with_profiles, "directional")
-    assert _largest_intermediate(jax.make_jaxpr(program)(params, *options).jaxpr) > 100 * len(WAVELENGTHS)
+    program = planner._program(with_profiles)
+    assert _largest_intermediate(jax.make_jaxpr(program)(params, DJ2006, scale).jaxpr) > 100 * values
 
     result = the_plan.evaluate(params)
     np.testing.assert_allclose(result.reflectance, skinfit.diffuse_reflectance(params, WAVELENGTHS), rtol=1e-14)
@@ -57,17 +63,20 @@ def test_rgb_plan_keeps_its_colour_error_on_parameters_it_was_not_chosen_on():
     assert error.max() <= tolerance
 
 
-def test_a_profile_inside_one_pixel_is_skipped_and_really_is_inside():
+@pytest.mark.parametrize(("model_name", "footprint"), [("dj2006", 4.0), ("calibrated", 10.0)])
+def test_a_profile_inside_one_pixel_is_skipped_and_really_is_inside(model_name, footprint):
+    """A distant face, a few pixels across (the calibrated model's dark skin returns more light from
+    far away than DJ2006's, so its profile fits inside a larger pixel only)."""
     params = skinfit.preset("dark")
-    footprint = 4.0  # mm: a distant face, a few pixels across
-    skipped = planner.plan(rgb=True, profiles=True, pixel_footprint_mm=footprint, params=params)
+    model = skinfit.SkinModel.named(model_name)
+    skipped = planner.plan(rgb=True, profiles=True, pixel_footprint_mm=footprint, params=params, model=model)
     assert not skipped.computes_profiles and "not needed" in skipped.describe()
     # independent check: integrate the profile itself beyond half the footprint
     lam = np.asarray(skipped.model_wavelengths_nm)
     radii = np.geomspace(footprint / 2, 200.0, 4000)
-    prof = np.asarray(skinfit.profile(params, lam, radii, entry_fresnel=True))
+    prof = np.asarray(skinfit.profile(params, lam, radii, entry_fresnel=True, model=model))
     outside = np.trapezoid(2 * np.pi * radii * prof, radii, axis=-1)
-    total = np.asarray(skinfit.diffuse_reflectance(params, lam))
+    total = np.asarray(skinfit.diffuse_reflectance(params, lam, model=model))
     assert np.all(outside <= skipped.request.energy_tolerance * total)
 
     kept = planner.plan(rgb=True, profiles=True, pixel_footprint_mm=0.2, params=skinfit.preset("light"))

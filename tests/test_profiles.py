@@ -12,6 +12,8 @@ from skinfit.profiles import layered_profile, profile
 
 from . import reference as ref
 
+from .conftest import DJ2006
+
 
 def assert_profile_close(got, expected, rtol=1e-6, floor=1e-13):
     """Relative agreement, except in far tails below ``floor`` times the peak (float64 round-off there)."""
@@ -30,11 +32,11 @@ def test_profile_integrates_to_r12(name):
     params = skinfit.preset(name)
     wl = np.arange(400.0, 701.0, 20.0)
     radii = np.geomspace(1e-5, 200.0, 4000)
-    values = profile(params, wl, radii)
-    r12 = skinfit.stack_transfer(skinfit.skin_layers(params, wl), 0.0)
+    values = profile(params, wl, radii, model=DJ2006)
+    r12 = skinfit.stack_transfer(skinfit.skin_layers(params, wl, model=DJ2006), 0.0)
     np.testing.assert_allclose(_energy(radii, values), r12, rtol=1e-4)
-    with_fresnel = profile(params, wl, radii, entry_fresnel=True)
-    np.testing.assert_allclose(_energy(radii, with_fresnel), skinfit.diffuse_reflectance(params, wl), rtol=1e-4)
+    with_fresnel = profile(params, wl, radii, entry_fresnel=True, model=DJ2006)
+    np.testing.assert_allclose(_energy(radii, with_fresnel), skinfit.diffuse_reflectance(params, wl, model=DJ2006), rtol=1e-4)
 
 
 @pytest.mark.parametrize("d, sigma_a, sigma_s", [(0.1, 0.05, 20.0), (0.25, 0.05, 5.0), (1.0, 0.2, 3.0), (10.0, 0.01, 2.0)])
@@ -57,7 +59,7 @@ def test_thin_slab_needs_and_accepts_a_larger_q_range():
 
 @pytest.mark.parametrize("name, wavelength", [("light", 550.0), ("light", 650.0), ("medium", 700.0)])
 def test_two_layer_profile_matches_2d_fft(name, wavelength):
-    layers = skinfit.skin_layers(skinfit.preset(name), np.array([wavelength]))
+    layers = skinfit.skin_layers(skinfit.preset(name), np.array([wavelength]), model=DJ2006)
     layers = [jax.tree_util.tree_map(lambda a: a[0] if jnp.ndim(a) else a, layer) for layer in layers]
     radii_fft, values_fft = ref.fft_profile(lambda q: np.asarray(skinfit.stack_transfer(layers, q)))
     keep = (radii_fft > 0) & (radii_fft <= 1.0)

@@ -25,3 +25,25 @@ def test_readme_benchmark_tables_are_the_saved_benchmark_output():
     readme = (ROOT / "README.md").read_text()
     block = readme.split("<!-- bench:start -->\n", 1)[1].split("\n<!-- bench:end -->", 1)[0]
     assert block == (ROOT / "benchmarks" / "results" / "pareto" / "summary.md").read_text().strip()
+
+
+def test_readme_calibration_summary_is_the_saved_calibration_report():
+    readme = (ROOT / "README.md").read_text()
+    block = readme.split("<!-- calibration:start -->\n", 1)[1].split("\n<!-- calibration:end -->", 1)[0]
+    assert block == (ROOT / "benchmarks" / "results" / "calibration_summary.md").read_text().strip()
+
+
+def test_calibration_summary_describes_the_shipped_model():
+    import json
+
+    shipped = json.loads((ROOT / "spectra" / "calibrated_model.json").read_text())
+    record = json.loads((ROOT / "benchmarks" / "results" / "calibration.json").read_text())
+    for name, value in record["constants"].items():
+        assert abs(_constant(shipped["constants"], name) - value) <= 1e-12 * max(1.0, abs(value)), name
+
+
+def _constant(constants, dotted):
+    node = constants
+    for part in dotted.split("."):
+        node = node[part]
+    return node

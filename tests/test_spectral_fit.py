@@ -9,6 +9,8 @@ import skinfit
 from skinfit.spectral_fit import FitStatus, fit_spectra
 from skinfit.profiles import captured_reflectance
 
+DJ2006 = skinfit.SkinModel.dj2006()
+
 WL = np.arange(400.0, 701.0, 10.0)
 CHROMOPHORES = ("melanin", "melanin_blend", "haemoglobin")
 
@@ -23,7 +25,8 @@ def batch_fit():
     nan = spectra[0].copy()
     nan[3] = np.nan
     spectra = np.vstack([spectra, nan, np.full(WL.size, 3.0)])
-    return true, spectra, fit_spectra(WL, spectra, progress=False)
+    # the package default, maximum likelihood: a forward spectrum and its fit round-trip
+    return true, spectra, fit_spectra(WL, spectra, prior=False, progress=False)
 
 
 def test_noise_free_spectra_are_recovered(batch_fit):
@@ -33,7 +36,9 @@ def test_noise_free_spectra_are_recovered(batch_fit):
     assert np.all(fit.status[: len(true)] == FitStatus.SUCCESS)
     assert np.all(fit.rms_residual[: len(true)] < 1e-8)
     assert np.all(fit.delta_e2000[: len(true)] < 1e-4)
-    assert fit.parameters["blood_oxygenation"][0] == pytest.approx(0.75)
+    # a constant that is not fitted reports the model's value
+    assert fit.parameters["blood_oxygenation"][0] == pytest.approx(float(skinfit.SkinModel.default().blood_oxygenation))
+    assert fit.model == skinfit.SkinModel.default().name
 
 
 def test_bad_spectra_get_a_status_and_no_nan(batch_fit):
@@ -62,7 +67,7 @@ def test_extended_measurement_model_is_recovered():
     port = 2.5
     spectrum = 1.05 * (np.asarray(captured_reflectance(params, WL, port)) + 0.03)
     fit = fit_spectra(
-        WL, spectrum, free=(*CHROMOPHORES, "specular_offset", "calibration_scale"), port_radius_mm=port, progress=False
+        WL, spectrum, free=(*CHROMOPHORES, "specular_offset", "calibration_scale"), port_radius_mm=port, prior=False, progress=False
     )
     assert fit.status == FitStatus.SUCCESS
     expected = {"melanin": 0.03, "melanin_blend": 0.5, "haemoglobin": 0.02, "specular_offset": 0.03, "calibration_scale": 1.05}
@@ -90,13 +95,14 @@ def test_wavelengths_outside_the_tables_are_a_clear_error():
         fit_spectra(np.arange(200.0, 701.0, 10.0), np.full(51, 0.3), progress=False)
 
 
-def test_round_trip_over_the_parameter_box():
+@pytest.mark.parametrize("model", [DJ2006, skinfit.SkinModel.default()], ids=["dj2006", "calibrated"])
+def test_round_trip_over_the_parameter_box(model):
     """1,000 random parameter sets (C_m 0.001-0.5, beta_m 0-1, C_h 0.001-0.1), 400-700 nm every 10 nm."""
     rng = np.random.default_rng(0)
     n = 1000
     true = np.column_stack([rng.uniform(0.001, 0.5, n), rng.uniform(0.0, 1.0, n), rng.uniform(0.001, 0.1, n)])
-    spectra = np.asarray(skinfit.diffuse_reflectance(skinfit.SkinParams(*true.T), WL))
-    fit = fit_spectra(WL, spectra, progress=False)
+    spectra = np.asarray(skinfit.diffuse_reflectance(skinfit.SkinParams(*true.T), WL, model=model))
+    fit = fit_spectra(WL, spectra, model=model, prior=False, progress=False)
     got = np.column_stack([fit.parameters[k] for k in CHROMOPHORES])
     assert np.all(fit.status == FitStatus.SUCCESS)
     assert np.max(np.abs(got - true)) <= 1e-6
@@ -125,7 +131,7 @@ def test_oil_is_fitted_where_the_measurement_includes_the_specular_part():
     specular, subsurface = skinfit.surface_energy(skinfit.SkinParams(**truth), wl, np.array([np.sin(theta), 0.0, np.cos(theta)]))
     measured = np.asarray(specular)[:, None] + np.asarray(subsurface)  # an SCI measurement at 8 degrees
     fit = skinfit.fit_spectra(wl, measured, free=("melanin", "melanin_blend", "haemoglobin", "oil"),
-                              specular_included_deg=8.0, progress=False)
+                              specular_included_deg=8.0, prior=False, progress=False)
     assert np.all(fit.status == skinfit.FitStatus.SUCCESS)
     for name, values in truth.items():
         np.testing.assert_allclose(fit.parameters[name], values, atol=1e-8)
@@ -145,14 +151,14 @@ def test_transport_fit_recovers_transport_spectra_where_diffusion_cannot():
     the transport fit; the diffusion fit of the same spectra misses them (its parameters are
     biased: transport is darker)."""
     true = np.array([[0.02, 0.3, 0.04], [0.15, 0.0, 0.01]])
-    spectra = np.asarray(skinfit.diffuse_reflectance(skinfit.SkinParams(*true.T), WL_COARSE, method="transport"))
-    fit = fit_spectra(WL_COARSE, spectra, method="transport", progress=False)
+    spectra = np.asarray(skinfit.diffuse_reflectance(skinfit.SkinParams(*true.T), WL_COARSE, model=DJ2006, method="transport"))
+    fit = fit_spectra(WL_COARSE, spectra, model=DJ2006, method="transport", progress=False)
     got = np.column_stack([fit.parameters[k] for k in CHROMOPHORES])
     assert np.all(fit.status == FitStatus.SUCCESS)
     np.testing.assert_allclose(got, true, atol=1e-6)
     assert np.all(fit.rms_residual < 1e-8)
     np.testing.assert_allclose(fit.fitted, spectra, atol=1e-8)
-    diffusion = fit_spectra(WL_COARSE, spectra, progress=False)
+    diffusion = fit_spectra(WL_COARSE, spectra, model=DJ2006, progress=False)
     assert np.all(diffusion.rms_residual > 100 * fit.rms_residual + 1e-4)
 
 
@@ -160,17 +166,20 @@ def test_transport_fit_converges_on_a_measured_spectrum_far_from_the_model():
     """A NIST spectrum (RMS residual ~0.05, far above its noise): the bounded quasi-Newton polish
     still reaches first-order optimality, and lowers the residual below diffusion's."""
     from skinfit.measurements import read_nist
-    from skinfit.spectral_fit import _measurement_model, _stationarity
+    from skinfit.fit_variables import stationarity as _stationarity
+    from skinfit.spectral_fit import measurement_model
     import jax.numpy as jnp
     import jax
 
     nist = read_nist(Path(__file__).parents[1] / "data" / "nist_skin_reflectance_250-1000nm.csv")
     spectrum = np.interp(WL_COARSE, nist.wavelengths_nm, nist.average[2])
-    fit = fit_spectra(WL_COARSE, spectrum, method="transport", progress=False)
-    diffusion = fit_spectra(WL_COARSE, spectrum, progress=False)
+    # a purely spectral fit (no colour term), so that the stationarity below is of the cost it minimised
+    fit = fit_spectra(WL_COARSE, spectrum, model=DJ2006, method="transport", colour_weight=0.0, progress=False)
+    diffusion = fit_spectra(WL_COARSE, spectrum, model=DJ2006, colour_weight=0.0, progress=False)
     assert fit.status == FitStatus.SUCCESS and diffusion.status == FitStatus.SUCCESS
     assert fit.rms_residual < diffusion.rms_residual
-    model = _measurement_model(CHROMOPHORES, None, None, "directional", None, "transport")
+    model = measurement_model(skinfit.reflectance.model_with_options(DJ2006, method="transport"), CHROMOPHORES, None, None,
+                              colour_weight=0.0)
     theta = jnp.array([fit.parameters[k] for k in CHROMOPHORES])
     residual = lambda th: model.spectrum_of_free(th, jnp.asarray(WL_COARSE)) - spectrum  # noqa: E731
     r = residual(theta)
@@ -182,13 +191,14 @@ def test_transport_with_a_port_is_energy_corrected():
     """With a finite port the transport model captures diffusion's fraction of transport's total."""
     import jax.numpy as jnp
 
-    from skinfit.spectral_fit import _measurement_model
+    from skinfit.spectral_fit import measurement_model
 
     params = skinfit.SkinParams(0.05, 0.5, 0.02)
-    model = _measurement_model(CHROMOPHORES, None, 2.0, "directional", None, "transport")
+    model = measurement_model(skinfit.reflectance.model_with_options(DJ2006, method="transport"), CHROMOPHORES, None, 2.0)
     got = np.asarray(model.spectrum_of_free(jnp.array([0.05, 0.5, 0.02]), jnp.asarray(WL_COARSE)))
-    fraction = np.asarray(captured_reflectance(params, WL_COARSE, 2.0)) / np.asarray(skinfit.diffuse_reflectance(params, WL_COARSE))
-    expected = np.asarray(skinfit.diffuse_reflectance(params, WL_COARSE, method="transport")) * fraction
+    fraction = (np.asarray(captured_reflectance(params, WL_COARSE, 2.0, model=DJ2006))
+                / np.asarray(skinfit.diffuse_reflectance(params, WL_COARSE, model=DJ2006)))
+    expected = np.asarray(skinfit.diffuse_reflectance(params, WL_COARSE, model=DJ2006, method="transport")) * fraction
     np.testing.assert_allclose(got, expected, rtol=1e-6)
 
 

@@ -11,6 +11,8 @@ from skinfit.monte_carlo import monte_carlo_reflectance
 
 from .reference import semi_infinite_isotropic_albedo
 
+from .conftest import DJ2006
+
 F0 = (0.4 / 2.4) ** 2
 
 
@@ -64,14 +66,15 @@ def test_two_layer_stacks_match_monte_carlo(stack):
 def test_skin_spectra_gradients_and_float32():
     params = skinfit.preset("medium")
     wl = np.array([450.0, 550.0, 650.0])
-    exact = skinfit.diffuse_reflectance(params, wl, method="transport")
-    assert np.all(np.asarray(exact) < np.asarray(skinfit.diffuse_reflectance(params, wl)))  # diffusion is too bright here
-    f32 = skinfit.diffuse_reflectance(skinfit.SkinParams(*(jnp.float32(v) for v in (0.15, 0.7, 0.01))), wl.astype(np.float32), method="transport")
+    exact = skinfit.diffuse_reflectance(params, wl, method="transport", model=DJ2006)
+    assert np.all(np.asarray(exact) < np.asarray(skinfit.diffuse_reflectance(params, wl, model=DJ2006)))  # diffusion is too bright here
+    f32 = skinfit.diffuse_reflectance(skinfit.SkinParams(*(jnp.float32(v) for v in (0.15, 0.7, 0.01))), wl.astype(np.float32), method="transport",
+                                       model=DJ2006)
     assert f32.dtype == jnp.float32
     np.testing.assert_allclose(f32, exact, rtol=2e-3)
 
     def total(c_m):
-        return jnp.sum(skinfit.diffuse_reflectance(skinfit.SkinParams(c_m, 0.7, 0.01), wl, method="transport"))
+        return jnp.sum(skinfit.diffuse_reflectance(skinfit.SkinParams(c_m, 0.7, 0.01), wl, method="transport", model=DJ2006))
 
     grad = float(jax.grad(total)(0.15))
     h = 1e-5
@@ -90,8 +93,8 @@ def test_energy_corrected_profiles_integrate_to_the_transport_total():
     params = skinfit.preset("light")
     wl = np.array([450.0, 650.0])
     radii = np.geomspace(1e-5, 200.0, 4000)
-    corrected = np.asarray(skinfit.profile(params, wl, radii, method="transport", entry_fresnel=True))
+    corrected = np.asarray(skinfit.profile(params, wl, radii, method="transport", entry_fresnel=True, model=DJ2006))
     energy = np.trapezoid(2 * np.pi * radii**2 * corrected, np.log(radii), axis=-1)
-    np.testing.assert_allclose(energy, skinfit.diffuse_reflectance(params, wl, method="transport"), rtol=1e-5)
-    shape = np.asarray(skinfit.profile(params, wl, radii, entry_fresnel=True))
+    np.testing.assert_allclose(energy, skinfit.diffuse_reflectance(params, wl, method="transport", model=DJ2006), rtol=1e-5)
+    shape = np.asarray(skinfit.profile(params, wl, radii, entry_fresnel=True, model=DJ2006))
     np.testing.assert_allclose(corrected / corrected[:, :1], shape / shape[:, :1], rtol=1e-10)  # same shape

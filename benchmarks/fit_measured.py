@@ -1,0 +1,89 @@
+"""Fitting measured spectra: time and quality of ``fit_spectra`` on real skin, per model.
+
+    python -m benchmarks.fit_measured [--data ../shared/data] [--n 1000] [--out benchmarks/results]
+
+1,000 ISSA face spectra (d/8, specular included, 400-700 nm every 10 nm; the archive is read from
+the shared data folder, never shipped) fitted with DJ2006's constants (diffusion) and with the
+calibrated default model (tabulated transport), each with the defaults a user gets
+(``specular_included_deg=8``: oil free; the calibrated model's prior on). Reports the first call
+(compilation included) and the median of three calls after it, in the same process, so the two
+models are timed on the same machine at the same time; plus the fits' accuracy and statuses.
+"""
+
+from __future__ import annotations
+
+import argparse
+import datetime
+import json
+import platform
+import subprocess
+import time
+from pathlib import Path
+
+import numpy as np
+
+import skinfit
+from skinfit.measurements import FACE_SITES, read_issa
+from skinfit.spectral_fit import FitStatus
+
+ROOT = Path(__file__).resolve().parents[1]
+WAVELENGTHS = np.arange(400.0, 701.0, 10.0)
+
+
+def measured_spectra(data: Path, n: int) -> np.ndarray:
+    archive = read_issa(data / "issa-subset" / "issa_subset.csv")
+    face = archive.select([r["body_site"] in FACE_SITES for r in archive.records]).complete(WAVELENGTHS)
+    keep = np.sort(np.random.default_rng(0).choice(len(face.reflectance), min(n, len(face.reflectance)), replace=False))
+    return face.reflectance[keep]
+
+
+def timed_fits(spectra: np.ndarray, model, repeats: int = 3, **options) -> dict:
+    start = time.perf_counter()
+    fit = skinfit.fit_spectra(WAVELENGTHS, spectra, model=model, progress=False, **options)
+    first = time.perf_counter() - start
+    seconds = []
+    for _ in range(repeats):
+        start = time.perf_counter()
+        fit = skinfit.fit_spectra(WAVELENGTHS, spectra, model=model, progress=False, **options)
+        seconds.append(time.perf_counter() - start)
+    return {
+        "model": fit.model,
+        "first_call_s": first,
+        "median_s": float(np.median(seconds)),
+        "us_per_spectrum": 1e6 * float(np.median(seconds)) / len(spectra),
+        "delta_e2000_median": float(np.median(fit.delta_e2000)),
+        "delta_e2000_p95": float(np.percentile(fit.delta_e2000, 95)),
+        "rms_median": float(np.median(fit.rms_residual)),
+        "status_counts": {s.name: int(np.sum(fit.status == s)) for s in FitStatus},
+    }
+
+
+def main(argv=None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--data", default=str(ROOT.parent / "shared" / "data"))
+    parser.add_argument("--n", type=int, default=1000)
+    parser.add_argument("--out", default=str(ROOT / "benchmarks" / "results"))
+    args = parser.parse_args(argv)
+    spectra = measured_spectra(Path(args.data), args.n)
+    result = {
+        "date": datetime.date.today().isoformat(),
+        "commit": subprocess.run(["git", "describe", "--always", "--dirty"], capture_output=True, text=True, cwd=ROOT).stdout.strip(),
+        "machine": f"{platform.machine()}, python {platform.python_version()}",
+        "spectra": len(spectra),
+        "options": {"specular_included_deg": 8.0},
+        "dj2006": timed_fits(spectra, skinfit.SkinModel.dj2006(), specular_included_deg=8.0),
+        "calibrated": timed_fits(spectra, skinfit.SkinModel.default(), specular_included_deg=8.0),
+        "calibrated_with_band_pass": timed_fits(spectra, skinfit.SkinModel.default(), specular_included_deg=8.0, bandwidth_nm=10.0),
+    }
+    out = Path(args.out)
+    out.mkdir(parents=True, exist_ok=True)
+    (out / "fit_measured.json").write_text(json.dumps(result, indent=2) + "\n", encoding="utf-8")
+    for key in ("dj2006", "calibrated", "calibrated_with_band_pass"):
+        r = result[key]
+        print(f"{key:26s} {r['us_per_spectrum']:8.0f} us/spectrum (first call {r['first_call_s']:.1f} s), CIEDE2000 median "
+              f"{r['delta_e2000_median']:.2f} p95 {r['delta_e2000_p95']:.2f}, RMS {r['rms_median']:.4f}, {r['status_counts']}")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
