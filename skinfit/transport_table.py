@@ -114,6 +114,7 @@ class TransportTable(eqx.Module):
         """R_max = 1 - F0: the reflectance of the non-absorbing stack."""
         return 1.0 - ((self.ior - self.ior_above) / (self.ior + self.ior_above)) ** 2
 
+    @eqx.filter_jit  # one program per shape, also when called eagerly (op by op it compiles dozens)
     def reflectance(self, absorption_epidermis, reduced_scattering_epidermis, thickness_mm, absorption_dermis,
                     reduced_scattering_dermis):
         """Diffuse reflectance (1 - F0) R12 at normal incidence, the convention of

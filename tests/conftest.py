@@ -1,3 +1,4 @@
+import jax
 import numpy as np
 import pytest
 
@@ -14,6 +15,15 @@ LIGHT_FIXTURE = {
     "R12_directional": np.array([0.3553, 0.3893, 0.5209]),
     "R12_symmetric": np.array([0.3823, 0.4558, 0.6244]),
 }
+
+
+@pytest.fixture(scope="module", autouse=True)
+def _release_compiled_programs():
+    """Drop JAX's compiled programs after each test module. One process runs the whole suite, and
+    each XLA CPU executable holds memory mappings: thousands of them reach the kernel's per-process
+    map limit (vm.max_map_count), where LLVM fails to allocate and the process segfaults."""
+    yield
+    jax.clear_caches()
 
 
 @pytest.fixture
