@@ -495,7 +495,8 @@ class ImageFit:
             "fitted_fraction": float(fitted.mean()),
             "median_dE2000": float(np.median(delta_e)) if delta_e.size else float("nan"),
             "p95_dE2000": float(np.percentile(delta_e, 95)) if delta_e.size else float("nan"),
-            "melanin_blend": round(float(self.melanin_blend.flat[0]), 6) if self.melanin_blend.size else float("nan"),
+            # the blend of the fitted pixels (the map holds 0 where nothing was fitted)
+            "melanin_blend": round(float(np.median(self.melanin_blend[fitted])), 6) if fitted.any() else float("nan"),
             "white_balance": list(self.white_balance),
             "model": self.model_name,
             "seconds": self.seconds,
@@ -536,7 +537,7 @@ def fit_image(
     """
     import time
 
-    from .images import read_linear_rgb
+    from .images import read_linear_rgb, read_mask
 
     start = time.perf_counter()
     model = model_with_options(model, method=method)
@@ -548,10 +549,11 @@ def fit_image(
         if rgb.ndim != 3 or rgb.shape[-1] != 3:
             raise SkinfitInputError(f"expected an image of shape (h, w, 3), got {rgb.shape}")
     if _is_path(mask):
-        mask_rgb, mask_alpha = read_linear_rgb(mask, "linear")
-        mask = mask_rgb.max(axis=-1) if mask_alpha is None else mask_alpha
+        mask = read_mask(mask)
     if mask is not None:
         mask = np.asarray(mask)
+        if mask.ndim == 3 and mask.shape[-1] == 1:
+            mask = mask[..., 0]
         if mask.shape != rgb.shape[:2]:
             raise SkinfitInputError(f"mask has shape {mask.shape}, the image {rgb.shape[:2]}")
     if use_alpha and alpha is not None:

@@ -50,6 +50,19 @@ def read_linear_rgb(path: str | os.PathLike, input_space: str | None = None) -> 
     return to_linear_srgb(rgb, space), alpha
 
 
+def read_mask(path: str | os.PathLike) -> np.ndarray:
+    """Read a mask image as (h, w) floats in [0, 1] (0: not fitted), whatever its channels and bit
+    depth: its alpha channel if it has one, else its only channel (``Y``, ``A`` or unnamed), else the
+    largest of its channels. Integer files are scaled to [0, 1]; no transfer function is applied."""
+    path = Path(path)
+    spec, pixels = _read_pixels(path)
+    names = [name.upper() for name in spec.channelnames]
+    alpha = [i for i, name in enumerate(names) if name == "A" or name.endswith(".A")]
+    if alpha and spec.nchannels > 1:
+        return pixels[..., alpha[0]]
+    return pixels.max(axis=-1)
+
+
 def _default_space(spec) -> str:
     declared = (spec.get_string_attribute("oiio:ColorSpace") or "").lower()
     if "linear" in declared or "scene_linear" in declared:

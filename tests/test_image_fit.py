@@ -195,3 +195,25 @@ def test_clipping_is_judged_on_the_camera_values_not_after_the_white_balance():
     fit = fit_image(rgb, white_balance=(0.8, 1.0, 1.2), model=DJ2006, progress=False)
     assert fit.status[0, 0] == PixelStatus.SATURATED
     assert not np.any(fit.status.ravel()[1:] == PixelStatus.SATURATED)
+
+
+def test_cli_takes_a_one_channel_mask(tmp_path, rendered_64):
+    import OpenImageIO as oiio
+
+    _, rgb = rendered_64
+    photo = tmp_path / "face.exr"
+    write_exr(photo, {"R": rgb[:8, :8, 0], "G": rgb[:8, :8, 1], "B": rgb[:8, :8, 2]})
+    keep = np.zeros((8, 8), np.uint8)
+    keep[:, :5] = 255
+    spec = oiio.ImageSpec(8, 8, 1, oiio.UINT8)
+    out = oiio.ImageOutput.create(str(tmp_path / "mask.png"))
+    assert out.open(str(tmp_path / "mask.png"), spec) and out.write_image(keep[..., None])
+    out.close()
+    assert cli.main(["fit-image", str(photo), "--mask", str(tmp_path / "mask.png"), "--out", str(tmp_path / "out"), "--model", "dj2006"]) == 0
+    channels, _ = read_exr_channels(tmp_path / "out" / "face_maps.exr")
+    assert np.all(channels["status"][:, 5:] == PixelStatus.MASKED)
+    assert np.mean(channels["status"][:, :5] == PixelStatus.SUCCESS) > 0.9
+
+    fit = fit_image(photo, mask=tmp_path / "mask.png", model=DJ2006, progress=False)  # the first pixel is fitted here,
+    masked_first = fit_image(photo, mask=np.fliplr(keep), model=DJ2006, progress=False)  # and masked here
+    assert fit.summary()["melanin_blend"] == masked_first.summary()["melanin_blend"] == 0.7

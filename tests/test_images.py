@@ -6,7 +6,7 @@ import pytest
 
 from skinfit._validate import SkinfitInputError
 from skinfit.colorimetry import srgb_decode
-from skinfit.images import read_linear_rgb, to_linear_srgb, write_exr
+from skinfit.images import read_linear_rgb, read_mask, to_linear_srgb, write_exr
 
 
 def write(path, data, fmt, names):
@@ -55,3 +55,19 @@ def test_unreadable_and_channel_less_files_give_clear_errors(tmp_path):
     write_exr(tmp_path / "depth.exr", {"Z": np.zeros((2, 2)), "W": np.zeros((2, 2))})
     with pytest.raises(SkinfitInputError, match="R, G and B"):
         read_linear_rgb(tmp_path / "depth.exr")
+
+
+@pytest.mark.parametrize(
+    ("fmt", "top", "names"),
+    [(oiio.UINT8, 255, ("Y",)), (oiio.UINT16, 65535, ("Y",)), (oiio.UINT8, 255, ("R", "G", "B", "A")), (oiio.UINT8, 255, ("R", "G", "B"))],
+    ids=["one-channel 8-bit", "one-channel 16-bit", "alpha", "rgb"],
+)
+def test_masks_of_any_channel_count_and_bit_depth(tmp_path, fmt, top, names):
+    """The usual skin mask is one channel; an RGBA mask is its alpha; an RGB one its largest channel."""
+    keep = np.array([[1, 0, 1], [0, 1, 1]], dtype=float)
+    data = np.repeat(keep[..., None], len(names), axis=-1)
+    if "A" in names:
+        data[..., :3] = 1.0 - keep[..., None]  # the colour is not the mask; the alpha is
+    dtype = np.uint8 if fmt == oiio.UINT8 else np.uint16
+    write(tmp_path / "mask.png", (data * top).astype(dtype), fmt, names)
+    np.testing.assert_array_equal(read_mask(tmp_path / "mask.png"), keep)
