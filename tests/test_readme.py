@@ -47,3 +47,9 @@ def _constant(constants, dotted):
     for part in dotted.split("."):
         node = node[part]
     return node
+
+
+def test_readme_measured_fit_table_is_the_saved_benchmark_output():
+    readme = (ROOT / "README.md").read_text()
+    block = readme.split("<!-- fit-measured:start -->\n", 1)[1].split("\n<!-- fit-measured:end -->", 1)[0]
+    assert block == (ROOT / "benchmarks" / "results" / "fit_measured.md").read_text().strip()
