@@ -26,7 +26,6 @@ from __future__ import annotations
 
 import dataclasses
 import functools
-import hashlib
 
 import equinox as eqx
 import jax
@@ -37,7 +36,7 @@ from ._validate import SkinfitInputError
 from .colorimetry import DEFAULT_ILLUMINANT, linear_srgb_weights
 from .params import SkinParams
 from .reflectance import _skin_reflectance, model_with_options
-from .skin_model import SkinModel, Transport
+from .skin_model import SkinModel, Transport, cache_key
 
 #: The box of the image fit. Three channels cannot tell heavy melanin with much blood from heavy
 #: melanin with little (the colour map folds over: at C_m 0.37 the colours of C_h 0.075 and 0.36
@@ -84,10 +83,6 @@ class ColourTable:
     inverse_jacobian: np.ndarray  # (inverse_cells, inverse_cells, 2 branches, 2 roots, 2 chroma)
     inverse_edges: tuple[np.ndarray, np.ndarray]
     model: SkinModel
-
-    @property
-    def model_name(self) -> str:
-        return self.model.name
 
     def warm_starts(self, pixels: np.ndarray) -> np.ndarray:
         """Both warm starts (n, 2 branches, 2) for linear sRGB pixels (n, 3) (see ``warm_starts``)."""
@@ -136,7 +131,7 @@ def colour_table(
     if nodes is None:
         nodes = TRANSPORT_NODES if direct else 129
     key = (float(melanin_blend), str(illuminant), float(melanin_max), float(haemoglobin_max), int(nodes), int(inverse_cells),
-           _model_key(model))
+           cache_key(model))
     table = _TABLES.get(key)
     if table is None:
         table = _colour_table(float(melanin_blend), str(illuminant), float(melanin_max), float(haemoglobin_max), int(nodes),
@@ -150,21 +145,9 @@ def colour_table(
 _TABLES: dict = {}
 
 
-def _model_key(model: SkinModel):
-    """Hashable identity of a model's structure and values."""
-    dynamic, static = eqx.partition(model, eqx.is_array)
-    leaves, treedef = jax.tree_util.tree_flatten(static)
-    digest = hashlib.blake2b(digest_size=16)
-    for leaf in jax.tree_util.tree_leaves(dynamic):
-        digest.update(np.ascontiguousarray(np.asarray(leaf)).tobytes())
-    return treedef, tuple(leaves), digest.digest()
-
-
 def _colour_table(melanin_blend, illuminant, melanin_max, haemoglobin_max, nodes, inverse_cells, model, direct) -> ColourTable:
     from scipy.spatial import cKDTree
 
-    if not 0.0 <= melanin_blend <= 1.0:
-        raise SkinfitInputError(f"melanin_blend must be within [0, 1], got {melanin_blend}")
     grid = np.linspace(0.0, 1.0, nodes)
     u, v = (a.ravel() for a in np.meshgrid(grid, grid, indexing="ij"))
     box = (float(melanin_blend), float(melanin_max), float(haemoglobin_max))

@@ -15,7 +15,6 @@ stored contiguously so that one argmin per row serves all groups.
 
 from __future__ import annotations
 
-import hashlib
 
 import equinox as eqx
 import jax
@@ -23,7 +22,8 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Float
 
-from .fit_variables import CHROMOPHORES, MODEL, MODEL_FIELDS, STARTS, VARIABLES, MeasurementModel, to_unbounded
+from .fit_variables import CHROMOPHORES, MODEL, STARTS, VARIABLES, MeasurementModel, model_constant, to_unbounded
+from .skin_model import cache_key
 
 #: Grid of each free chromophore (index by the table shape (C_m, beta_m, C_h)).
 _AXES = {
@@ -98,7 +98,7 @@ def build_fit_table(
     kept for the last few models (keyed by their values): a fit with the same model reuses one, and a
     model with other constants builds its own without recompiling.
     """
-    key = (model.static_key, _digest(model), wavelengths, weights, tuple(shape), tuple(groups))
+    key = (cache_key(model), wavelengths, weights, tuple(shape), tuple(groups))
     table = _TABLES.get(key)
     if table is None:
         table = _build_fit_table(model, wavelengths, weights, tuple(shape), tuple(groups))
@@ -111,20 +111,12 @@ def build_fit_table(
 _TABLES: dict = {}
 
 
-def _digest(tree) -> bytes:
-    """A digest of the array values of a pytree (for caching results per value)."""
-    h = hashlib.blake2b(digest_size=16)
-    for leaf in jax.tree_util.tree_leaves(eqx.filter(tree, eqx.is_array)):
-        h.update(np.ascontiguousarray(np.asarray(leaf)).tobytes())
-    return h.digest()
-
-
 def _start_value(model: MeasurementModel, name: str) -> float:
     var = VARIABLES[name]
     if name in STARTS:
         return STARTS[name]
     if var.default == MODEL:
-        return float(np.mean(np.asarray(getattr(model.skin, MODEL_FIELDS[name]))))
+        return model_constant(model.skin, name)
     return float(var.default)
 
 

@@ -41,11 +41,10 @@ from jaxtyping import Array, Float
 from .colorimetry import xyz_weights
 from .fresnel import normal_fresnel_reflectance
 from .hankel import HankelQuadrature, energy_kernel
-from .layers import SKIN_ANISOTROPY
 from .params import SkinParams
 from .profiles import captured_of_layers
 from .reflectance import skin_stack_reflectance
-from .skin_model import Diffusion, SkinModel, Transport
+from .skin_model import Diffusion, SkinModel
 from .surface import SURFACE_ROUGHNESS, lobe_albedo
 
 
@@ -88,9 +87,13 @@ VARIABLES: dict[str, FitVariable] = {
 
 CHROMOPHORES = ("melanin", "melanin_blend", "haemoglobin")
 
-#: Variables that override a constant of the skin model, and the model field each replaces.
-MODEL_FIELDS = {"blood_oxygenation": "blood_oxygenation", "epidermis_thickness_mm": "epidermis_thickness_mm",
-                "carotene_umol_per_l": "carotene_umol_per_l"}
+#: Variables that override the skin model's constant of the same name.
+MODEL_FIELDS = ("blood_oxygenation", "epidermis_thickness_mm", "carotene_umol_per_l")
+
+
+def model_constant(skin: SkinModel, name: str) -> float:
+    """The model's value of the fit variable ``name`` (one of ``MODEL_FIELDS``; its mean if it varies)."""
+    return float(np.mean(np.asarray(getattr(skin, name))))
 
 #: Where a free variable starts when no table covers it (and it has no fixed value).
 STARTS = {"specular_offset": 0.02, "oil": 0.3, "carotene_umol_per_l": 5.0}
@@ -151,13 +154,9 @@ class MeasurementModel(eqx.Module):
     colour_weight: float = eqx.field(static=True, default=0.0)
     use_prior: bool = eqx.field(static=True, default=False)
 
-    def with_method(self, method: str) -> "MeasurementModel":
-        """The same measurement through another forward method: ``"diffusion"`` or ``"transport"``
-        (direct adding-doubling)."""
-        if method == "diffusion":
-            new = Diffusion(self.skin.method.adding if isinstance(self.skin.method, Diffusion) else "directional")
-        else:
-            new = Transport(_anisotropy_of(self.skin), float(np.asarray(self.skin.ior)), 16)
+    def as_diffusion(self) -> "MeasurementModel":
+        """The same measurement through the diffusion model (the start of a transport fit)."""
+        new = Diffusion(self.skin.method.adding if isinstance(self.skin.method, Diffusion) else "directional")
         return eqx.tree_at(lambda m: m.skin, self, self.skin.replace(method=new))
 
     @property
@@ -192,7 +191,7 @@ class MeasurementModel(eqx.Module):
         lam_out = np.asarray(wavelengths_nm, dtype=float)
         lam, slit = _slit(tuple(lam_out.tolist()), self.bandwidth_nm)
         lam = jnp.asarray(lam, dtype)
-        skin = self.skin.replace(**{MODEL_FIELDS[n]: v[n] for n in MODEL_FIELDS if n in v})
+        skin = self.skin.replace(**{n: v[n] for n in MODEL_FIELDS if n in v})
         params = SkinParams(v["melanin"], v["melanin_blend"], v["haemoglobin"])
         one = jnp.ones(jnp.shape(v["melanin"]), dtype)
         layers = skin.layers(params, lam, scattering_scale=v.get("scattering_scale", one))
@@ -212,22 +211,25 @@ class MeasurementModel(eqx.Module):
         scale = v.get("calibration_scale", one)[..., None]
         return scale * (diffuse + v.get("specular_offset", 0.0 * one)[..., None])
 
-    def residual(self, u, target, wavelengths_nm, weights, *, colour: bool = True):
-        """The least-squares residual of one fit at u: the weighted spectrum, then (where they are on)
-        the colour term (``colour=False`` leaves it out) and the prior's rows."""
+    def residual(self, u, target, wavelengths_nm, weights):
+        """The least-squares residual of one fit at u: the weighted spectrum (m rows), then (where they
+        are on) the colour term (``colour_rows``) and the prior's rows."""
         values = self.values(u)
-        return self._residual(values, self.spectrum_of_values(values, wavelengths_nm, u.dtype), target, wavelengths_nm,
-                              weights, colour)
+        return self._residual(values, self.spectrum_of_values(values, wavelengths_nm, u.dtype), target, wavelengths_nm, weights)
 
-    def residual_of_free(self, theta, target, wavelengths_nm, weights, *, colour: bool = True):
+    def residual_of_free(self, theta, target, wavelengths_nm, weights):
         """``residual`` at the physical values ``theta`` of the free variables."""
         values = self._with_fixed({name: theta[..., i] for i, name in enumerate(self.free)}, theta)
-        return self._residual(values, self.spectrum_of_values(values, wavelengths_nm, theta.dtype), target, wavelengths_nm,
-                              weights, colour)
+        return self._residual(values, self.spectrum_of_values(values, wavelengths_nm, theta.dtype), target, wavelengths_nm, weights)
 
-    def _residual(self, values, spectrum, target, wavelengths_nm, weights, colour):
+    @property
+    def colour_rows(self) -> int:
+        """Rows of the colour term in ``residual`` (CIELAB L*, a*, b*), after the spectrum's."""
+        return 3 if self.colour_weight else 0
+
+    def _residual(self, values, spectrum, target, wavelengths_nm, weights):
         parts = [weights * (spectrum - target)]
-        if self.colour_weight and colour:
+        if self.colour_rows:
             xyz = jnp.asarray(_xyz_weights(tuple(np.asarray(wavelengths_nm, dtype=float).tolist())), spectrum.dtype)
             parts.append(self.colour_weight * (_lab(spectrum @ xyz.T, xyz) - _lab(target @ xyz.T, xyz)))
         if self.use_prior:
@@ -260,11 +262,6 @@ def stationarity(free, theta, gradient, cost):
     at_high = high - theta <= 1e-6 * span
     projected = jnp.where(at_low, jnp.minimum(gradient, 0.0), jnp.where(at_high, jnp.maximum(gradient, 0.0), gradient))
     return jnp.max(jnp.abs(projected) * span) / jnp.maximum(cost, 1e-300)
-
-
-def _anisotropy_of(skin: SkinModel) -> float:
-    """The model's transport anisotropy, or the skin default for a diffusion model."""
-    return skin.method.anisotropy if isinstance(skin.method, Transport) else SKIN_ANISOTROPY
 
 
 @functools.lru_cache(maxsize=32)

@@ -46,7 +46,6 @@ from .colorimetry import DEFAULT_ILLUMINANT, delta_e2000, linear_srgb_to_lab, li
 from .colour_table import (
     COLOUR_WAVELENGTHS_NM,
     ColourTable,
-    _model_key,
     colour_table,
     model_rgb,
     params_rgb,
@@ -55,7 +54,7 @@ from .colour_table import (
     warm_starts,
 )
 from .reflectance import model_with_options
-from .skin_model import SkinModel, Transport, resolve_model
+from .skin_model import SkinModel, Transport, cache_key, resolve_model
 
 
 class PixelStatus(enum.IntEnum):
@@ -284,6 +283,7 @@ def fit_pixels(
     table: ColourTable | None = None,
     method: str | None = None,
     model: SkinModel | None = None,
+    white_balance: tuple[float, float, float] | None = None,
 ) -> dict[str, np.ndarray]:
     """Fit every pixel of a linear sRGB image (h, w, 3) (or pixels (n, 3)).
 
@@ -298,12 +298,14 @@ def fit_pixels(
         max_delta_e: CIEDE2000 above which a pixel is ``OUT_OF_MODEL`` (default 1, about a
             just-noticeable difference: the skin model cannot reproduce the pixel).
         black_level, saturation_level: linear values below / at or above which a pixel is
-            ``BLACK`` / ``SATURATED``.
+            ``BLACK`` / ``SATURATED`` (judged on the values given, before ``white_balance``).
         table: a ``colour_table(...)`` of another resolution (spline nodes, inverse cells) to use
             instead of the default one; its blend, illuminant and model must match.
         model: the ``SkinModel`` (default: the package default); ``method`` overrides its forward
             method (``"transport"``: direct adding-doubling, whose colour table takes minutes on a
             laptop CPU, once per process and blend). The colour spline and the ``exact_steps`` use it.
+        white_balance: per-channel camera gains the pixels carry: the skin model is fitted to the
+            pixels divided by them (``fitted_rgb`` is without them).
 
     Returns maps of the input's leading shape: ``melanin``, ``melanin_blend``, ``haemoglobin``,
     ``shading``, ``residual_dE2000``, ``status`` (``PixelStatus``) and ``fitted_rgb`` (..., 3).
@@ -316,11 +318,16 @@ def fit_pixels(
     shape = rgb.shape[:-1]
     pixels = rgb.reshape(-1, 3)
     status, clean = _screen(pixels, mask, black_level, saturation_level)
+    if white_balance is not None:
+        gains = np.asarray(white_balance, dtype=float)
+        if gains.shape != (3,) or not np.all(gains > 0):
+            raise SkinfitInputError(f"white_balance must be three positive gains, got {white_balance}")
+        clean = clean / gains
 
     model = model_with_options(model, method=method)
     if table is None:
         table = colour_table(float(melanin_blend), illuminant, model=model)
-    elif (table.melanin_blend, table.illuminant, _model_key(table.model)) != (float(melanin_blend), illuminant, _model_key(model)):
+    elif (table.melanin_blend, table.illuminant, cache_key(table.model)) != (float(melanin_blend), illuminant, cache_key(model)):
         raise SkinfitInputError("the colour table's melanin_blend, illuminant and model must match the fit's")
     todo = np.flatnonzero(status == 0)
     n = len(pixels)
@@ -597,18 +604,10 @@ def _fit_in_bands(rgb, gains, mask, options, progress, band_pixels: int = 1 << 2
         from tqdm.auto import tqdm
 
         bands = tqdm(bands, desc="fitting bands", unit="band")
-    # Black and clipped pixels are judged on the camera's values, before the white balance divides them
-    # (a red gain below 1 would otherwise call bright skin saturated).
-    black_level, saturation_level = options.pop("black_level", 1e-4), options.pop("saturation_level", 0.999)
     for top in bands:
-        raw = rgb[top : top + rows]
-        screened = _screen(raw.reshape(-1, 3), None, black_level, saturation_level)[0].reshape(raw.shape[:2])
-        clipped = (screened == PixelStatus.BLACK) | (screened == PixelStatus.SATURATED)
-        band_mask = None if mask is None else np.asarray(mask[top : top + rows]) > 0
-        if clipped.any():
-            band_mask = ~clipped if band_mask is None else band_mask & ~clipped
-        part = fit_pixels(raw / gains, mask=band_mask, progress=False, black_level=0.0, saturation_level=np.inf, **options)
-        part["status"] = np.where(clipped, screened, part["status"]).astype(part["status"].dtype)
+        # the camera's values: black and clipped pixels are judged before the white balance divides them
+        part = fit_pixels(rgb[top : top + rows], mask=None if mask is None else mask[top : top + rows], white_balance=tuple(gains),
+                          progress=False, **options)
         part["fitted_rgb"] = part["fitted_rgb"] * gains
         if maps is None:
             maps = {k: np.zeros((h, w, *v.shape[2:]), np.float32 if v.dtype == np.float64 else v.dtype) for k, v in part.items()}

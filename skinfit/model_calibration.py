@@ -36,10 +36,9 @@ import numpy as np
 
 from ._batching import map_batches, pad_size
 from ._validate import SkinfitInputError
-from .fit_table import _digest
 from .fit_variables import VARIABLES, prior_coordinate, to_unbounded
-from .skin_model import PopulationPrior, SkinModel
-from .spectral_fit import COLOUR_WEIGHT, FitStatus, fit_spectra, measurement_model
+from .skin_model import PopulationPrior, SkinModel, cache_key
+from .spectral_fit import COLOUR_WEIGHT, FitStatus, SpectralFit, fit_spectra, measurement_model
 
 
 @dataclasses.dataclass(frozen=True)
@@ -258,8 +257,9 @@ def calibrate_model(
     calibrated, errors, naive, history = _calibrate(lam, target, model, constants, groups, options, max_steps, inner_steps,
                                                     chunk_size, progress)
     ml = fit_spectra(lam, target, model=calibrated, progress=progress, prior=False, **options)
-    calibrated = _with_prior(calibrated, ml, lam, target, options).replace(name=name)
-    fit = fit_spectra(lam, target, model=calibrated, progress=progress, **options)
+    calibrated, fit = _with_prior(calibrated, ml, lam, target, options)
+    calibrated = calibrated.replace(name=name)  # a static label: the MAP fit under the final prior stands
+    fit = dataclasses.replace(fit, model=calibrated.name)
 
     seconds = time.perf_counter() - start
 
@@ -288,7 +288,7 @@ def _cross_validate(lam, target, model, constants, groups, options, folds, max_s
         fitted_model = _calibrate(lam, target[train], model, constants, groups[train], options, max_steps, inner_steps, chunk_size,
                                   progress)[0]
         fit = fit_spectra(lam, target[train], model=fitted_model, progress=False, prior=False, **options)
-        fitted_model = _with_prior(fitted_model, fit, lam, target[train], options)
+        fitted_model, _ = _with_prior(fitted_model, fit, lam, target[train], options)
         fold_constants.append({c: _scalar(fitted_model, c) for c in constants})
         held_out = fit_spectra(lam, target[test], model=fitted_model, progress=False, **options)
         rms[test], delta_e[test], status[test] = held_out.rms_residual, held_out.delta_e2000, held_out.status
@@ -300,13 +300,14 @@ def _cross_validate(lam, target, model, constants, groups, options, folds, max_s
             "fold_constants": fold_constants}
 
 
-def _with_prior(model: SkinModel, fit, lam, target, options, rounds: int = 3) -> SkinModel:
+def _with_prior(model: SkinModel, fit, lam, target, options, rounds: int = 3) -> tuple[SkinModel, SpectralFit]:
     """The population prior of the spectra (empirical Bayes): each free variable's median and robust
     spread (1.4826 MAD, floored at 0.05) in its prior coordinate, re-estimated ``rounds`` times from
     the MAP fits under the previous estimate. The first estimate comes from the maximum-likelihood
     fits, where a weakly determined variable (the melanin blend) often sits on a bound: far out in
     its logit coordinate; the MAP fits pull those in and the spread settles. The noise scale that
-    weighs the prior is the median RMS residual of the maximum-likelihood fits."""
+    weighs the prior is the median RMS residual of the maximum-likelihood fits. Returns the model and
+    its MAP fits of the spectra."""
     noise = float(np.median(fit.rms_residual[fit.status == FitStatus.SUCCESS]))
     current = fit
     for _ in range(rounds):
@@ -318,7 +319,7 @@ def _with_prior(model: SkinModel, fit, lam, target, options, rounds: int = 3) ->
             names.append(name), mean.append(centre), sd.append(max(1.4826 * float(np.median(np.abs(z - centre))), 0.05))
         model = model.replace(prior=PopulationPrior(tuple(names), jnp.asarray(mean), jnp.asarray(sd), jnp.asarray(noise)))
         current = fit_spectra(lam, target, model=model, prior=True, progress=False, **options)
-    return model
+    return model, current
 
 
 def _calibrate(lam, target, model, constants, groups, options, max_steps, inner_steps, chunk_size, progress):
@@ -406,7 +407,7 @@ _KERNELS: dict = {}
 
 def _kernels(measurement, constants, wavelengths) -> "_Kernels":
     """One set of compiled kernels per measurement (values included: they are compiled in) and grid."""
-    key = (measurement.static_key, _digest(measurement), constants, wavelengths)
+    key = (cache_key(measurement), constants, wavelengths)
     if key not in _KERNELS:
         _KERNELS[key] = _Kernels(measurement, constants, wavelengths)
         while len(_KERNELS) > 4:
@@ -449,9 +450,10 @@ class _Kernels:
         """Per spectrum: Kaufman's reduced normal matrix, gradient and the cost at (u, s)."""
 
         def one(ui, t):
-            r = self._residual(s, ui, t, w)
-            j_u = jax.jacfwd(lambda x: self._residual(s, x, t, w))(ui)
-            j_s = jax.jacfwd(lambda x: self._residual(x, ui, t, w))(s)
+            k = ui.shape[0]
+            both = lambda x: (self._residual(x[k:], x[:k], t, w),) * 2  # noqa: E731 - one pass for u and s
+            jacobian, r = jax.jacfwd(both, has_aux=True)(jnp.concatenate([ui, s.astype(ui.dtype)]))
+            j_u, j_s = jacobian[:, :k], jacobian[:, k:]
             normal = j_u.T @ j_u + 1e-12 * jnp.eye(j_u.shape[1])
             projected = j_s - j_u @ jnp.linalg.solve(normal, j_u.T @ j_s)
             return projected.T @ projected, projected.T @ r, jnp.sum(r**2)

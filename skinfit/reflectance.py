@@ -168,26 +168,29 @@ def diffuse_reflectance(
 def model_with_options(model: SkinModel | None, *, adding=None, blood_oxygenation=None, epidermis_thickness_mm=None,
                        ior=None, method=None, anisotropy=None, streams=None) -> SkinModel:
     """``model`` (default: the package default) with the keyword overrides of the public functions."""
-    model = resolve_model(model)
-    if adding is not None and adding not in ADDING_MODES:
-        raise _validate.SkinfitInputError(f"adding must be one of {', '.join(ADDING_MODES)}, got {adding!r}")
+    model = resolve_model(model)  # checked
+    if adding is not None:
+        _check_options(adding)
     if method is not None:
         _check_method(method)
-    for name, value in (("blood_oxygenation", blood_oxygenation), ("epidermis_thickness_mm", epidermis_thickness_mm), ("ior", ior)):
-        if value is not None:
-            model = model.replace(**{name: _validate.as_float_array(name, value)})
+    overrides = {name: _validate.as_float_array(name, value) for name, value in
+                 (("blood_oxygenation", blood_oxygenation), ("epidermis_thickness_mm", epidermis_thickness_mm), ("ior", ior))
+                 if value is not None}
+    if overrides:
+        model = model.replace(**overrides).check()
+    # replacing the method rebuilds (and checks) the model
     if method == "diffusion" or (method is None and adding is not None and isinstance(model.method, Diffusion)):
         model = model.replace(method=Diffusion(adding or "directional"))
     elif method == "transport":
-        if not _validate.is_concrete(model.ior) or np.unique(np.asarray(model.ior, dtype=float)).size != 1:
+        ior_values = np.unique(np.asarray(model.ior, dtype=float)) if _validate.is_concrete(model.ior) else None
+        if ior_values is None or ior_values.size != 1:
             raise _validate.SkinfitInputError("method='transport' needs one concrete ior for the skin")
         g = SKIN_ANISOTROPY if anisotropy is None else anisotropy
         _validate.check_range("anisotropy", g, -0.99, 0.99)
         if np.ndim(g) != 0:
             raise _validate.SkinfitInputError("anisotropy must be one value")
-        model = model.replace(method=Transport(float(g), float(np.unique(np.asarray(model.ior, dtype=float))[0]),
-                                               int(streams or 16)))
-    return model.check()
+        model = model.replace(method=Transport(float(g), float(ior_values[0]), int(streams or 16)))
+    return model
 
 
 @eqx.filter_jit

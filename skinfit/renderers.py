@@ -131,13 +131,15 @@ def renderer_profiles(
     inside = _DENSE_RADII <= 2 * max_radius
     gaussians = {c: fit_gaussians(_DENSE_RADII[inside], dense_rgb[i, inside], albedo[i]) for i, c in enumerate(CHANNELS)}
     burley = {c: fit_burley(_DENSE_RADII[inside], dense_rgb[i, inside], albedo[i]) for i, c in enumerate(CHANNELS)}
-    ior = float(np.mean(np.asarray(model_with_options(model_options.get("model"), ior=model_options.get("ior")).ior)))
+    resolved = model_with_options(model_options.get("model"), ior=model_options.get("ior"))
+    ior = float(np.mean(np.asarray(resolved.ior)))
     median = [float(np.interp(0.5, np.maximum.accumulate(e), _DENSE_RADII)) for e in energy]
     medium = homogeneous_medium(albedo, np.array(median), ior)
 
     metadata = {
         "generator": f"skinfit {__version__}",
-        "model": model_with_options(model_options.get("model")).description,
+        "model": resolved.description,
+        "ior": ior,
         "label": label,
         "parameters": {f: float(getattr(params, f)) for f in ("melanin", "melanin_blend", "haemoglobin")},
         "options": {k: (v if isinstance(v, (str, float, int)) else repr(v)) for k, v in model_options.items() if k != "model"},
@@ -289,7 +291,7 @@ def pbrt_v4_material(result: RendererProfiles, name: str = "skin", scene_units_p
         f'    "rgb sigma_a" [ {fmt(m["absorption_per_mm"])} ]\n'
         f'    "rgb sigma_s" [ {fmt(m["reduced_scattering_per_mm"])} ]\n'
         f'    "float g" 0\n'
-        f'    "float eta" {float(result.metadata["options"].get("ior", SKIN_IOR)):g}\n'
+        f'    "float eta" {float(result.metadata.get("ior", SKIN_IOR)):g}\n'
         f'    "float scale" {1.0 / scene_units_per_mm:g}\n'
     )
 
@@ -302,7 +304,7 @@ def blender_principled(result: RendererProfiles) -> dict:
         "Subsurface Weight": 1.0,
         "Subsurface Radius": result.medium["mean_free_path_mm"],
         "Subsurface Scale": 0.001,
-        "Subsurface IOR": float(result.metadata["options"].get("ior", SKIN_IOR)),
+        "Subsurface IOR": float(result.metadata.get("ior", SKIN_IOR)),
         "subsurface_method": "RANDOM_WALK",
         "note": "Subsurface Radius in mm (mean free path 1/sigma_t' per channel); Subsurface Scale 0.001 for scenes in metres",
     }

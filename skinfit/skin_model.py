@@ -25,6 +25,7 @@ adding-doubling, tabulated or direct).
 from __future__ import annotations
 
 import functools
+import hashlib
 import importlib.resources
 import json
 from pathlib import Path
@@ -402,12 +403,6 @@ def _calibrated() -> SkinModel:
     return SkinModel.from_dict(json.loads(text))
 
 
-def calibration_record() -> dict:
-    """The shipped calibrated model's full JSON: constants, uncertainties, data and measured accuracy."""
-    text = importlib.resources.files("skinfit.spectra").joinpath(CALIBRATED_MODEL_FILE).read_text(encoding="utf-8")
-    return json.loads(text)
-
-
 def _cast(model: SkinModel, dtype) -> SkinModel:
     """The model's constants in ``dtype`` (the transport table keeps its own)."""
     def cast(x):
@@ -417,6 +412,28 @@ def _cast(model: SkinModel, dtype) -> SkinModel:
     rest = eqx.tree_at(lambda m: m.method, model, None, is_leaf=lambda x: x is None)
     rest = jax.tree_util.tree_map(cast, rest)
     return eqx.tree_at(lambda m: m.method, rest, method, is_leaf=lambda x: x is None)
+
+
+def cache_key(tree) -> tuple:
+    """Hashable key of a pytree's structure and array values (a model, or a measurement holding one),
+    for caches of what is computed per value: colour tables, fit tables, calibration kernels.
+
+    A transport table enters through its static fields and a sample of its coefficients: they are
+    built deterministically from those fields, and hashing all 4 MB of them on every fit would
+    cost milliseconds."""
+    is_table = lambda x: isinstance(x, TransportTable)  # noqa: E731
+    tables = [t for t in jax.tree_util.tree_leaves(tree, is_leaf=is_table) if is_table(t)]
+    rest = jax.tree_util.tree_map(lambda x: None if is_table(x) else x, tree, is_leaf=is_table)
+    dynamic, static = eqx.partition(rest, eqx.is_array)
+    leaves, treedef = jax.tree_util.tree_flatten(static)
+    digest = hashlib.blake2b(digest_size=16)
+    for leaf in jax.tree_util.tree_leaves(dynamic):
+        digest.update(np.ascontiguousarray(np.asarray(leaf)).tobytes())
+    for table in tables:
+        coefficients = np.asarray(table.coefficients)
+        digest.update(repr((coefficients.shape, table.lower, table.step, table.anisotropy, table.ior, table.streams)).encode())
+        digest.update(np.ascontiguousarray(coefficients.reshape(-1)[::101]).tobytes())
+    return treedef, tuple(leaves), digest.digest()
 
 
 def resolve_model(model: SkinModel | None) -> SkinModel:

@@ -42,6 +42,7 @@ from .fit_variables import (
     VARIABLES,
     MeasurementModel,
     from_unbounded,
+    model_constant,
     stationarity,
     to_unbounded,
 )
@@ -227,11 +228,10 @@ def fit_spectra(
     clean = np.where(bad[:, None], 0.3, np.nan_to_num(target))  # a harmless stand-in; reported as BAD_INPUT
 
     wavelengths, wtuple = tuple(lam.tolist()), tuple(w.tolist())
+    solver = _solver(measurement.static_key, wavelengths, wtuple, settings)
     if direct_transport:
         u, steps, converged = _fit_transport(measurement, lam, w, clean, settings, chunk_size, progress)
-        solver = _solver(measurement.static_key, wavelengths, wtuple, settings)
     else:
-        solver = _solver(measurement.static_key, wavelengths, wtuple, settings)
         u, steps, converged = solver.run(measurement, clean, chunk_size, progress)
 
     fitted, std_err, stationarity = solver.diagnostics(measurement, u, clean, chunk_size)
@@ -248,7 +248,7 @@ def fit_spectra(
     values = {k: np.array(v) for k, v in measurement.values(jnp.asarray(u)).items()}
     for name in VARIABLES:  # every variable is reported: the model's own constants where not set
         if name not in values and name in MODEL_FIELDS:
-            values[name] = np.full(len(clean), float(np.mean(np.asarray(getattr(skin, MODEL_FIELDS[name])))))
+            values[name] = np.full(len(clean), model_constant(skin, name))
     errors = {name: np.zeros(len(clean)) for name in VARIABLES}
     for i, name in enumerate(measurement.free):
         errors[name] = std_err[:, i]
@@ -262,7 +262,7 @@ def _fit_transport(measurement, lam, w, target, settings, chunk_size, progress):
     """(u, steps, converged) of direct transport fits: the diffusion fit, then bounded
     Levenberg-Marquardt on the transport model (``skinfit.transport_fit``)."""
     wavelengths, weights = tuple(lam.tolist()), tuple(w.tolist())
-    diffusion = measurement.with_method("diffusion")
+    diffusion = measurement.as_diffusion()
     u, steps, _ = _solver(diffusion.static_key, wavelengths, weights, settings).run(diffusion, target, chunk_size, progress)
     theta = np.stack([np.asarray(from_unbounded(name, u[:, i])) for i, name in enumerate(measurement.free)], axis=1)
     polish = bounded_polish(measurement.free, wavelengths, weights, settings.step_tol, settings.stationarity_tol)
@@ -305,7 +305,7 @@ def measurement_model(skin: SkinModel, free, fixed, port_radius_mm, specular_inc
             raise SkinfitInputError(f"fixed {name} = {value} is outside [{var.low}, {var.high}]")
         values[name] = float(value)
     for name in free:
-        if name in MODEL_FIELDS and np.ndim(getattr(skin, MODEL_FIELDS[name])) != 0:
+        if name in MODEL_FIELDS and np.ndim(getattr(skin, name)) != 0:
             raise SkinfitInputError(f"a fit of {name} needs a model whose {name} is one value")
     if port_radius_mm is not None and not (np.isfinite(port_radius_mm) and port_radius_mm > 0):
         raise SkinfitInputError("port_radius_mm must be a finite radius > 0 mm, or None")
@@ -343,7 +343,7 @@ class _Solver:
         # table would cost thousands of times more to build, and direct transport fits start from
         # the diffusion fit.
         if isinstance(measurement.skin.method, Transport) and measurement.skin.method.table is None:
-            measurement = measurement.with_method("diffusion")
+            measurement = measurement.as_diffusion()
         s = self.settings
         return build_fit_table(measurement, self.wavelengths, tuple(np.asarray(self.w).tolist()), tuple(s.table_shape),
                                tuple(s.start_groups))
@@ -466,13 +466,12 @@ class _Solver:
             # term weighs the fit but is no measurement, so the errors come from the spectrum (and
             # the prior, whose rows make them the posterior's)
             theta = jnp.stack([from_unbounded(name, ui[i]) for i, name in enumerate(measurement.free)])
-            full = lambda th: measurement.residual_of_free(th, ti, self.lam, self.w)  # noqa: E731
-            measured = lambda th: measurement.residual_of_free(th, ti, self.lam, self.w, colour=False)  # noqa: E731
-            jac, r_full = jax.jacfwd(full)(theta), full(theta)
-            jac_m, r = jax.jacfwd(measured)(theta), measured(theta)
+            residual = lambda th: (measurement.residual_of_free(th, ti, self.lam, self.w),) * 2  # noqa: E731
+            jac, r_full = jax.jacfwd(residual, has_aux=True)(theta)  # rows: spectrum, colour (3, if on), prior
             m = self.lam.size
+            jac_m = jnp.concatenate([jac[:m], jac[m + measurement.colour_rows :]])
             dof = jnp.maximum(m - theta.size, 1)
-            s2 = jnp.sum(r[:m] ** 2) / dof
+            s2 = jnp.sum(r_full[:m] ** 2) / dof
             evals, evecs = jnp.linalg.eigh(jac_m.T @ jac_m)
             evals = jnp.maximum(evals, 1e-30 * jnp.maximum(evals.max(), 1e-300))
             errors = jnp.sqrt(jnp.sum(evecs**2 / evals, axis=1) * s2)

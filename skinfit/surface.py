@@ -188,31 +188,34 @@ def reflectance_factor(
     model: SkinModel | None = None,
     roughness: ArrayLike = SURFACE_ROUGHNESS,
     surface_ior: ArrayLike | None = None,
+    scattering_scale: ArrayLike = 1.0,
     **model_options,
 ) -> Float[Array, "*batch n_wavelengths"]:
     """Radiance factor of a flat, uniformly lit patch: surface lobe plus subsurface light.
 
     beta = pi f_s(wi, wo) + (1 - rho(wi)) R12(0) (1 - rho(wo)) / (1 - rho_bar), with rho the
     lobe's directional albedo (oil included); 1 for a perfect white diffuser. Shape
-    (..., n_wavelengths); ``model`` and its overrides (``model_options``) as in ``diffuse_reflectance``;
-    ``surface_ior`` defaults to the model's. ``roughness`` and ``surface_ior`` are scalars here (rho
-    is tabulated over 257 angles per call and interpolated).
+    (..., n_wavelengths); ``model``, its overrides (``model_options``) and ``scattering_scale`` as in
+    ``diffuse_reflectance``; ``surface_ior`` defaults to the model's. ``roughness`` and ``surface_ior``
+    are scalars here (rho is tabulated over 257 angles per call and interpolated).
     """
     model = model_with_options(model, **model_options)
     surface_ior = model.surface_ior if surface_ior is None else surface_ior
     lam, wi, wo = _checked(wavelengths_nm, roughness, surface_ior, wi=wi, wo=wo)
     if np.ndim(roughness) or np.ndim(surface_ior):
         raise _validate.SkinfitInputError("reflectance_factor takes a scalar roughness and surface_ior")
-    return _reflectance_factor(params, lam, wi, wo, jnp.asarray(roughness), jnp.asarray(surface_ior), model)
+    _validate.check_range("scattering_scale", scattering_scale, 1e-3, 1e3)
+    return _reflectance_factor(params, lam, wi, wo, jnp.asarray(roughness), jnp.asarray(surface_ior), model,
+                               jnp.asarray(scattering_scale))
 
 
 @eqx.filter_jit
-def _reflectance_factor(params, lam, wi, wo, roughness, surface_ior, model):
+def _reflectance_factor(params, lam, wi, wo, roughness, surface_ior, model, scattering_scale):
     dtype = jnp.result_type(lam, params.oil, wi, wo)
     wi, wo = wi.astype(dtype), wo.astype(dtype)
     roughness, surface_ior = roughness.astype(dtype), surface_ior.astype(dtype)
     oil = jnp.asarray(params.oil, dtype)
-    r12 = _inside_reflectance(params, lam, model)  # (..., n_wavelengths)
+    r12 = _inside_reflectance(params, lam, model, scattering_scale)  # (..., n_wavelengths)
     mu_grid, table = _albedo_table(roughness, surface_ior)
     rho_i = oil * jnp.interp(wi[..., 2], mu_grid, table, left=0.0)
     rho_o = oil * jnp.interp(wo[..., 2], mu_grid, table, left=0.0)
@@ -223,9 +226,9 @@ def _reflectance_factor(params, lam, wi, wo, roughness, surface_ior, model):
     return specular[..., None] + (entry * exit_weight)[..., None] * r12
 
 
-def _inside_reflectance(params, lam, model):
+def _inside_reflectance(params, lam, model, scattering_scale=1.0):
     """R12(0) of the model: the diffuse reflectance for light already inside (entry Fresnel undone)."""
-    epidermis, dermis = model.layers(params, lam)
+    epidermis, dermis = model.layers(params, lam, scattering_scale=scattering_scale)
     return skin_stack_reflectance(epidermis, dermis, model.method) / (1.0 - normal_fresnel_reflectance(epidermis.ior))
 
 

@@ -68,10 +68,11 @@ def profile_table(
     spectral = np.asarray(profile(params, lam, radii, quadrature=quadrature, **model_options))
     reflectance = np.asarray(diffuse_reflectance(params, lam, **model_options))
     rgb = linear_srgb_weights(lam, illuminant) @ spectral
-    ior = float(np.mean(np.asarray(model_with_options(model_options.get("model"), ior=model_options.get("ior")).ior)))
+    resolved = model_with_options(model_options.get("model"), ior=model_options.get("ior"))
+    ior = float(np.mean(np.asarray(resolved.ior)))
     metadata = {
         "generator": f"skinfit {__version__}",
-        "model": model_with_options(model_options.get("model")).description,
+        "model": resolved.description,
         "label": label,
         "parameters": {
             "melanin": float(params.melanin),

@@ -112,7 +112,7 @@ class TransportTable(eqx.Module):
     @property
     def max_reflectance(self) -> float:
         """R_max = 1 - F0: the reflectance of the non-absorbing stack."""
-        return 1.0 - ((self.ior - self.ior_above) / (self.ior + self.ior_above)) ** 2
+        return _max_reflectance(self.ior, self.ior_above)
 
     @eqx.filter_jit  # one program per shape, also when called eagerly (op by op it compiles dozens)
     def reflectance(self, absorption_epidermis, reduced_scattering_epidermis, thickness_mm, absorption_dermis,
@@ -133,6 +133,11 @@ class TransportTable(eqx.Module):
         x = [jnp.broadcast_to(a, shape).reshape(-1) for a in (x1, x2, x3)]
         y = _spline(self.coefficients.astype(dtype), x, self.lower, self.step)
         return (self.max_reflectance * jax.nn.sigmoid(y)).reshape(shape)
+
+
+def _max_reflectance(ior: float, ior_above: float = _IOR_ABOVE) -> float:
+    """1 - F0 at normal incidence, in plain Python (the indices are static: this runs inside traces)."""
+    return 1.0 - ((ior - ior_above) / (ior + ior_above)) ** 2
 
 
 def _bspline_weights(u):
@@ -256,7 +261,7 @@ def build_transport_table(anisotropy: float = 0.8, ior: float = 1.4, *, streams:
     points = np.stack([a.ravel() for a in np.meshgrid(*axes, indexing="ij")], axis=-1)
     points[:, 1] = np.minimum(points[:, 1], saturation_thickness(points[:, 0], anisotropy))
     reflectance = node_reflectance(points, anisotropy, ior, streams, progress=progress)
-    r_max = 1.0 - ((ior - _IOR_ABOVE) / (ior + _IOR_ABOVE)) ** 2
+    r_max = _max_reflectance(ior)
     if not np.all((reflectance > 0.0) & (reflectance < r_max)):
         raise RuntimeError("adding-doubling gave reflectances outside (0, 1 - F0) at table nodes")
     values = np.log(reflectance / (r_max - reflectance)).reshape(tuple(len(a) for a in axes))

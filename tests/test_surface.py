@@ -127,3 +127,16 @@ def test_bad_directions_are_clear_errors():
         skinfit.reflectance_factor(params, WAVELENGTHS, np.array([0.0, 1.0]), UP)
     with pytest.raises(skinfit.SkinfitInputError, match="roughness"):
         skinfit.brdf(params, WAVELENGTHS, UP, UP, roughness=-1.0)
+
+
+def test_reflectance_factor_takes_the_scattering_scale():
+    """Without oil the patch returns R12(0), the diffuse reflectance with the entry Fresnel undone."""
+    params = skinfit.SkinParams(0.05, 0.6, 0.02, oil=0.0)
+    wl = np.array([450.0, 550.0, 650.0])
+    normal = np.array([0.0, 0.0, 1.0])
+    model = skinfit.SkinModel.dj2006()
+    f0 = ((1.4 - 1.0) / (1.4 + 1.0)) ** 2
+    for scale in (1.0, 2.0):
+        got = skinfit.reflectance_factor(params, wl, normal, normal, model=model, scattering_scale=scale)
+        expected = skinfit.diffuse_reflectance(params, wl, model=model, scattering_scale=scale) / (1.0 - f0)
+        np.testing.assert_allclose(got, expected, rtol=1e-10)
