@@ -15,10 +15,16 @@
 # # 03 · From a photo to melanin and haemoglobin maps, and back
 #
 # The bundled photo is a crop of NASA's public-domain portrait of astronaut Eileen Collins
-# (`data/README.md`). The camera model: a pixel's linear sRGB is
-# `white balance x shading x (DJ2006 reflectance through the CIE 1931 observer under D65)`.
-# Per pixel melanin, haemoglobin and shading are free; the melanin blend (0.7, DJ2006's value) and the
-# white balance (camera gains, fitted once for the image) are shared by the whole image.
+# (`data/README.md`), with a skin mask made for it without the skin model (`benchmarks/demo_skin_mask.py`).
+# The camera model: a pixel's linear sRGB (IEC 61966-2-1 primaries, D65 white = 1) is
+# `white balance x shading x (the calibrated model's reflectance through the CIE 1931 observer under D65)`.
+#
+# Three channels carry three unknowns per pixel: melanin, haemoglobin and shading. What a face shares is
+# fitted once: the white balance (camera gains, from the skin pixels under the population prior) and the
+# melanin blend (the population's mean). Per pixel the fit is a MAP estimate under the calibrated model's
+# population prior, the fold of the colour map (two parameter sets, one colour) is resolved against the
+# smooth shading of the neighbourhood, and a light edge-preserving prior ties each pixel to its
+# neighbourhood's median.
 
 # %%
 from pathlib import Path
@@ -27,65 +33,86 @@ import matplotlib.pyplot as plt
 import numpy as np
 
 import skinfit
+from skinfit._spatial import speckle_fraction
 from skinfit.colorimetry import srgb_encode
-from skinfit.images import read_linear_rgb
+from skinfit.images import read_linear_rgb, read_mask
 
 HERE = Path.cwd() if "__file__" not in globals() else Path(__file__).resolve().parent
-photo_path = HERE.parent / "data" / "eileen_collins_face.png"
-photo, _ = read_linear_rgb(photo_path)  # 8-bit sRGB decoded to linear
-fit = skinfit.fit_image(photo, white_balance=True, progress=False)
-summary = fit.summary()
-print({k: v for k, v in summary.items()})
+photo, _ = read_linear_rgb(HERE.parent / "data" / "eileen_collins_face.png")  # 8-bit sRGB decoded to linear
+mask = read_mask(HERE.parent / "data" / "eileen_collins_skin_mask.png") > 0
+fit = skinfit.fit_image(photo, mask=mask, progress=False)
+print(fit.summary())
 
 # %% [markdown]
 # ## Which pixels the skin model explains
-# `SUCCESS` pixels are reproduced within CIEDE2000 1 (the default `max_delta_e`); hair, eyes, lips, the suit
-# and the background are `OUT_OF_MODEL` (their colour is not a DJ2006 skin colour). In this photo's warm,
-# saturated studio light a share of the cheeks is outside the model's gamut at blend 0.7 as well.
+# `SUCCESS`: reproduced within CIEDE2000 1 with parameters skin has. `NOT_SKIN`: fitted only at the box's
+# edge, far outside the population or with a shading 3x off its neighbourhood (hair, brows). `SPECULAR`:
+# the neighbourhood's skin colour plus white light. `MASKED`: outside the skin mask.
 
 # %%
 for status in skinfit.PixelStatus:
-    count = int(np.sum(fit.status == status))
+    count = int(np.sum(fit.status[mask] == status))
     if count:
-        print(f"{status.name:<13} {count:6d} pixels ({100 * count / fit.status.size:.1f} %)")
-fitted = fit.status == skinfit.PixelStatus.SUCCESS
-print(f"CIEDE2000 over fitted pixels: median {np.median(fit.residual_dE2000[fitted]):.2g}, 95th percentile {np.percentile(fit.residual_dE2000[fitted], 95):.2g}")
+        print(f"{status.name:<13} {count:6d} skin-mask pixels ({100 * count / mask.sum():.1f} %)")
+skin = fit.skin_mask
+delta_e = fit.residual_dE2000[mask]
+print(f"CIEDE2000 over the mask: median {np.median(delta_e):.2g}, 95th percentile {np.percentile(delta_e, 95):.2g}")
+print(f"melanin off its 3x3 median by 2x: {100 * speckle_fraction(fit.melanin, skin):.2f} % of skin pixels")
 
 # %% [markdown]
-# ## The maps, and a blush re-rendered
-# The edit scales haemoglobin by 1.5 and renders the maps through the exact forward model and the same camera
-# model (`skinfit.render_maps`, then the fitted white balance).
+# ## The maps, their standard errors, and a blush re-rendered
+# The standard errors are the Laplace approximation at the fit (`colour_noise` 0.3 % per channel): large
+# where haemoglobin barely moves the colour and along the fold. The edit doubles haemoglobin and renders
+# the maps through the exact forward model and the same camera model.
 
 # %%
-shown = fit.status <= skinfit.PixelStatus.OUT_OF_MODEL
-blush = skinfit.render_maps(fit.melanin, 1.5 * fit.haemoglobin, fit.shading, melanin_blend=0.7) * np.asarray(fit.white_balance)
-blush = np.where(fitted[..., None], blush, fit.fitted_linear_rgb)
 to_srgb = lambda linear: np.asarray(srgb_encode(np.clip(linear, 0, 1)))  # noqa: E731
+blush = np.where(skin[..., None], fit.render(scale_haemoglobin=2.0), photo)
+reconstruction = np.where(skin[..., None], fit.fitted_linear_rgb, 0.3 * photo)
 
-fig, axes = plt.subplots(1, 5, figsize=(16, 4))
-axes[0].imshow(to_srgb(photo))
-axes[0].set_title("photo")
-axes[1].imshow(to_srgb(fit.fitted_linear_rgb))
-axes[1].set_title("reconstruction")
-for ax, name, cmap in ((axes[2], "melanin", "copper_r"), (axes[3], "haemoglobin", "Reds")):
-    image = ax.imshow(np.ma.masked_where(~fitted, getattr(fit, name)), cmap=cmap, vmax=np.percentile(getattr(fit, name)[fitted], 99))
+fig, axes = plt.subplots(2, 4, figsize=(15, 8))
+axes[0, 0].imshow(to_srgb(photo))
+axes[0, 0].set_title("photo")
+axes[0, 1].imshow(to_srgb(reconstruction))
+axes[0, 1].set_title("reconstruction (skin)")
+for ax, name, cmap in ((axes[0, 2], "melanin", "copper_r"), (axes[0, 3], "haemoglobin", "Reds"),
+                       (axes[1, 0], "melanin_se", "viridis"), (axes[1, 1], "haemoglobin_se", "viridis")):
+    values = getattr(fit, name)
+    image = ax.imshow(np.ma.masked_where(~skin, values), cmap=cmap, vmin=0, vmax=np.percentile(values[skin], 99))
     fig.colorbar(image, ax=ax, fraction=0.046)
-    ax.set_title(f"{name} (volume fraction)")
-axes[4].imshow(to_srgb(blush))
-axes[4].set_title("blush: haemoglobin x 1.5")
-for ax in axes:
+    ax.set_title(name.replace("_se", " standard error"))
+image = axes[1, 2].imshow(np.ma.masked_where(~mask, fit.residual_dE2000), cmap="magma", vmin=0, vmax=1)
+fig.colorbar(image, ax=axes[1, 2], fraction=0.046)
+axes[1, 2].set_title("CIEDE2000")
+axes[1, 3].imshow(to_srgb(blush))
+axes[1, 3].set_title("blush: haemoglobin x 2")
+for ax in axes.ravel():
     ax.axis("off")
 fig.tight_layout()
 fig.savefig("03_fit_photo_maps.png", dpi=100)
 
 # %% [markdown]
-# ## Round trip: maps -> image -> maps
-# Rendering the fitted maps and fitting the rendering again returns the maps (the fit is exact where the
-# model reaches the colour).
+# ## What the priors do
+# Without them (`prior=False`: maximum likelihood per pixel, the white balance from the gamut alone) the
+# same pixels are fitted exactly, but pixels fall on either branch of the fold and the maps speckle.
 
 # %%
-again = skinfit.fit_image(fit.fitted_linear_rgb / np.asarray(fit.white_balance), progress=False)
-both = fitted & (again.status == skinfit.PixelStatus.SUCCESS)
+ml = skinfit.fit_image(photo, mask=mask, prior=False, progress=False)
+ml_skin = ml.status == skinfit.PixelStatus.SUCCESS
+print(f"maximum likelihood: {100 * ml_skin[mask].mean():.1f} % of the mask SUCCESS, "
+      f"speckle {100 * speckle_fraction(ml.melanin, ml_skin):.2f} %, white balance {np.round(ml.white_balance, 3)}")
+print(f"MAP + coherence:    {100 * skin[mask].mean():.1f} % of the mask SUCCESS, "
+      f"speckle {100 * speckle_fraction(fit.melanin, skin):.2f} %, white balance {np.round(fit.white_balance, 3)}")
+
+# %% [markdown]
+# ## Round trip: maps -> image -> maps
+# Rendering the fitted maps and fitting the rendering again (calibrated input: no white balance; maximum
+# likelihood) returns the maps where the colour map does not fold.
+
+# %%
+again = skinfit.fit_image(fit.fitted_linear_rgb / np.asarray(fit.white_balance), mask=skin, white_balance="none",
+                          melanin_blend=float(fit.melanin_blend[skin][0]), prior=False, progress=False)
+both = skin & (again.status == skinfit.PixelStatus.SUCCESS)
 for name in ("melanin", "haemoglobin", "shading"):
     error = np.abs(getattr(again, name) - getattr(fit, name))[both]
     print(f"{name:<12} round-trip error median {np.median(error):.1e}, 99th percentile {np.percentile(error, 99):.1e}")

@@ -28,9 +28,10 @@ from .colorimetry import (  # noqa: E402
 from .spectral_fit import FitStatus, SolverSettings, SpectralFit, fit_spectra  # noqa: E402
 from .hankel import HankelQuadrature  # noqa: E402
 from .calibration import ImageCalibration, calibrate  # noqa: E402
+from .colour_chart import ChartCalibration, chart_calibration  # noqa: E402
 from .colour_table import ColourTable, colour_table  # noqa: E402
 from .image_fit import ImageFit, PixelStatus, fit_image, fit_pixels, render_maps  # noqa: E402
-from .images import read_linear_rgb  # noqa: E402
+from .images import read_linear_rgb, read_mask  # noqa: E402
 from .layers import Layer  # noqa: E402
 from .skin_model import Diffusion, PopulationPrior, ScatteringLaw, SkinModel, Transport, skin_layers  # noqa: E402
 from .measurements import ArchiveSpectra, NistSpectra, read_issa, read_nist  # noqa: E402
@@ -64,6 +65,8 @@ __all__ = [
     "HankelQuadrature",
     "ColourTable",
     "ImageCalibration",
+    "ChartCalibration",
+    "chart_calibration",
     "ImageFit",
     "PixelStatus",
     "calibrate",
@@ -71,6 +74,7 @@ __all__ = [
     "fit_image",
     "fit_pixels",
     "read_linear_rgb",
+    "read_mask",
     "render_maps",
     "Layer",
     "MonteCarloResult",

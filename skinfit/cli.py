@@ -21,6 +21,7 @@ from .skin_model import SkinModel
 
 #: The bundled photo (package skinfit.data, folder data/ of the repository).
 DEMO_PHOTO = "eileen_collins_face.png"
+DEMO_MASK = "eileen_collins_skin_mask.png"  # made by benchmarks/demo_skin_mask.py
 DEFAULT_WAVELENGTHS = "400:700:10"
 DEFAULT_RADII = "0.001:20:256"
 
@@ -179,7 +180,7 @@ def _cmd_demo(args) -> int:
     from importlib.resources import as_file, files
 
     from .image_fit import fit_image
-    from .images import read_linear_rgb, write_png
+    from .images import read_linear_rgb, read_mask, write_png
     from .plots import plot_image_fit
 
     out = Path(args.out)
@@ -188,22 +189,27 @@ def _cmd_demo(args) -> int:
     print(f"skinfit demo: fitting {DEMO_PHOTO} (NASA portrait of Eileen Collins, public domain)")
     print(f"  skin model: {model.description}")
     print("  camera model: linear sRGB = white balance x shading x skin reflectance through CIE 1931 / D65;")
-    print("  melanin blend 0.7, white balance fitted once for the image, melanin, haemoglobin and shading per pixel")
-    with as_file(files("skinfit.data") / DEMO_PHOTO) as photo:
+    print("  white balance and melanin blend once for the image, MAP melanin, haemoglobin and shading per pixel")
+    print(f"  under the population prior, light edge-preserving regularisation, on the shipped skin mask {DEMO_MASK}")
+    with as_file(files("skinfit.data") / DEMO_PHOTO) as photo, as_file(files("skinfit.data") / DEMO_MASK) as mask_path:
         linear, _ = read_linear_rgb(photo)
-    fit = fit_image(linear, white_balance=True, model=model, progress=not args.quiet)
+        mask = read_mask(mask_path) > 0
+    fit = fit_image(linear, mask=mask, model=model, progress=not args.quiet)
     summary = fit.summary()
     _write_fit(fit, out, "", DEMO_PHOTO, "D65")
-    blush = _encoded_srgb(fit.render(scale_haemoglobin=1.5))
+    # the edit on the skin, the photo elsewhere
+    blush = _encoded_srgb(np.where(fit.skin_mask[..., None], fit.render(scale_haemoglobin=2.0), linear))
     write_png(out / "blush.png", blush)
-    plot_image_fit(_encoded_srgb(linear), fit, blush, out / "maps.png", "blush: haemoglobin x 1.5")
+    plot_image_fit(_encoded_srgb(linear), fit, blush, out / "maps.png", "blush: haemoglobin x 2")
+    skin = fit.status[mask] == 0
+    delta_e = fit.residual_dE2000[mask]
     print(
-        f"  {summary['fitted']} of {summary['pixels']} pixels fitted ({100 * summary['fitted_fraction']:.1f} %; the rest: hair, eyes, "
-        f"lips, background - see the status map), CIEDE2000 of the fitted pixels median {summary['median_dE2000']:.2g}, "
-        f"95th percentile {summary['p95_dE2000']:.2g}"
+        f"  {int(skin.sum())} of {int(mask.sum())} skin-mask pixels fitted ({100 * skin.mean():.1f} %; the rest: see the status map), "
+        f"CIEDE2000 over the mask median {np.median(delta_e):.2g}, 95th percentile {np.percentile(delta_e, 95):.2g}; "
+        f"melanin median {np.median(fit.melanin[mask][skin]):.3f}, haemoglobin median {np.median(fit.haemoglobin[mask][skin]):.4f}"
     )
     print(f"  melanin blend {summary['melanin_blend']:.3g}, white balance {' '.join(f'{g:.3f}' for g in fit.white_balance)}, {summary['seconds']:.1f} s")
-    print(f"wrote {out}/: maps.exr (melanin, melanin_blend, haemoglobin, shading, residual_dE2000, status), maps.png, reconstructed.png, dE2000.png, blush.png")
+    print(f"wrote {out}/: maps.exr ({', '.join(fit.maps())}), maps.png, reconstructed.png, dE2000.png, skin_mask.png, blush.png")
     return 0
 
 
@@ -378,8 +384,10 @@ def _cmd_fit_image(args) -> int:
     options = dict(
         melanin_blend=args.melanin_blend, fit_blend=args.fit_blend, white_balance=white_balance, input_space=args.input_space,
         mask=args.mask, illuminant=args.illuminant, max_delta_e=args.max_delta_e, exact_steps=args.exact_steps, method=args.method,
-        model=_model(args), progress=False if args.quiet else None,
+        model=_model(args), progress=False if args.quiet else None, regularisation=args.regularisation, colour_chart=args.colour_chart,
     )
+    if args.no_prior:
+        options["prior"] = False
     if args.dask:
         from .distributed import fit_images_on_cluster
 
@@ -418,6 +426,7 @@ def _write_fit(fit, out: Path, prefix: str, source: str, illuminant: str) -> Pat
 
     write_png(out / f"{prefix}reconstructed.png", _encoded_srgb(fit.fitted_linear_rgb))
     write_png(out / f"{prefix}dE2000.png", _delta_e_image(fit.residual_dE2000))
+    write_png(out / f"{prefix}skin_mask.png", fit.skin_mask[..., None])  # one channel, 0 or 255
     attributes = {
         "skinfit:source": source,
         "skinfit:illuminant": illuminant,
@@ -443,7 +452,7 @@ def _encoded_srgb(linear: np.ndarray, rows: int = 256) -> np.ndarray:
 def _white_balance(text: str):
     """--white-balance: none, auto or R,G,B gains."""
     if text in ("none", "auto"):
-        return text == "auto"
+        return text
     try:
         gains = tuple(float(v) for v in text.split(","))
     except ValueError:
@@ -554,9 +563,17 @@ def build_parser() -> argparse.ArgumentParser:
     image = sub.add_parser("fit-image", help="fit melanin, haemoglobin and shading maps to photos or albedo images")
     image.add_argument("inputs", nargs="+", metavar="INPUT", help="EXR, TIFF, PNG or JPEG files")
     image.add_argument("--out", required=True, help="output folder (maps EXR, reconstruction and CIEDE2000 PNGs per input)")
-    image.add_argument("--melanin-blend", type=float, default=0.7, help="beta_m for the whole image (default 0.7)")
+    image.add_argument("--melanin-blend", type=float, default=None,
+                       help="beta_m for the whole image (default: the model's population mean, 0.42 calibrated, 0.7 DJ2006)")
     image.add_argument("--fit-blend", action="store_true", help="fit beta_m once for each image instead")
-    image.add_argument("--white-balance", default="none", help="none (albedo maps, default), auto (fit camera gains once per image) or R,G,B")
+    image.add_argument("--white-balance", default="auto",
+                       help="auto (default: camera gains fitted once per image from its skin pixels), none (inputs known to be "
+                            "calibrated linear sRGB / sRGB, D65 white) or R,G,B gains")
+    image.add_argument("--regularisation", choices=("off", "light", "strong"), default="light",
+                       help="edge-preserving spatial prior on melanin and haemoglobin (default light)")
+    image.add_argument("--colour-chart", action="store_true",
+                       help="calibrate the colours from a ColorChecker in the frame (needs skinfit[chart]); white balance then none")
+    image.add_argument("--no-prior", action="store_true", help="maximum likelihood per pixel: no population or spatial prior")
     image.add_argument("--max-delta-e", type=float, default=1.0, help="CIEDE2000 above which a pixel is out of model (default 1)")
     image.add_argument("--exact-steps", type=int, default=0, help="Gauss-Newton steps on the exact model after the spline fit")
     _add_model_choice(image)
@@ -566,7 +583,9 @@ def build_parser() -> argparse.ArgumentParser:
     image.add_argument("--dask", metavar="ADDRESS", default=None, help="run the images as tasks on this Dask scheduler")
     image.add_argument("--quiet", action="store_true", help="no progress bar")
     image.add_argument("--input-space", default=None, help="srgb, linear or a colour-science RGB colourspace name")
-    image.add_argument("--mask", default=None, help="mask image: pixels where it is 0 are not fitted")
+    image.add_argument("--mask", default=None,
+                       help="skin mask image (any channel count and bit depth: alpha, the only channel, or the largest): pixels where "
+                            "it is 0 are not fitted; without one, skin_mask.png is derived from the fit")
     image.add_argument("--illuminant", default="D65", help="illuminant of the camera model (default D65)")
     image.add_argument("--overwrite", action="store_true", help="refit images whose maps already exist")
     image.set_defaults(run=_cmd_fit_image)

@@ -97,13 +97,17 @@ def write_exr(path: str | os.PathLike, channels: dict[str, np.ndarray], attribut
     """Write (h, w) float maps as one EXR with the given channel names (float32, zip)."""
     oiio = _oiio()
     names = list(channels)
-    data = np.stack([np.asarray(channels[n], dtype=np.float32) for n in names], axis=-1)
-    spec = oiio.ImageSpec(data.shape[1], data.shape[0], len(names), oiio.FLOAT)
+    h, w = np.shape(channels[names[0]])[:2]
+    spec = oiio.ImageSpec(w, h, len(names), oiio.FLOAT)
     spec.channelnames = tuple(names)
     spec.attribute("compression", "zip")
     for key, value in (attributes or {}).items():
         spec.attribute(key, str(value))
-    _write(path, spec, data)
+
+    def band(top, bottom):  # interleaved float32 rows: a 4096 x 4096 image is never stacked whole
+        return np.stack([np.asarray(channels[n][top:bottom], dtype=np.float32) for n in names], axis=-1)
+
+    _write(path, spec, band, h)
 
 
 def read_exr_channels(path: str | os.PathLike) -> tuple[dict[str, np.ndarray], dict[str, str]]:
@@ -139,13 +143,22 @@ def write_png(path: str | os.PathLike, encoded_rgb: np.ndarray, bits: int = 8) -
     if bits not in (8, 16):
         raise SkinfitInputError(f"PNG bits must be 8 or 16, got {bits}")
     top, dtype, fmt = (255.0, np.uint8, oiio.UINT8) if bits == 8 else (65535.0, np.uint16, oiio.UINT16)
-    data = np.round(np.clip(encoded_rgb, 0.0, 1.0) * top).astype(dtype)
-    spec = oiio.ImageSpec(data.shape[1], data.shape[0], data.shape[2], fmt)
-    _write(path, spec, data)
+    h, w, channels = np.shape(encoded_rgb)
+    spec = oiio.ImageSpec(w, h, channels, fmt)
+
+    def band(first, last):
+        return np.round(np.clip(encoded_rgb[first:last], 0.0, 1.0) * top).astype(dtype)
+
+    _write(path, spec, band, h)
 
 
-def _write(path, spec, data) -> None:
-    """Write through a temporary file and rename, so that an interrupted run leaves no partial file."""
+#: Rows per band of ``_write``.
+_WRITE_ROWS = 256
+
+
+def _write(path, spec, band, height: int) -> None:
+    """Write the rows ``band(top, bottom)`` gives, ``_WRITE_ROWS`` at a time, through a temporary file
+    and rename, so that an interrupted run leaves no partial file and no whole-image copy is made."""
     oiio = _oiio()
     path = Path(path)
     handle, temp = tempfile.mkstemp(suffix=path.suffix, dir=path.parent)
@@ -154,7 +167,10 @@ def _write(path, spec, data) -> None:
         out = oiio.ImageOutput.create(temp)
         if out is None or not out.open(temp, spec):
             raise OSError(f"cannot write {path}: {oiio.geterror()}")
-        ok = out.write_image(data)
+        ok = True
+        for top in range(0, height, _WRITE_ROWS):
+            bottom = min(top + _WRITE_ROWS, height)
+            ok = ok and out.write_scanlines(top, bottom, 0, np.ascontiguousarray(band(top, bottom)))
         out.close()
         if not ok:
             raise OSError(f"cannot write {path}: {out.geterror()}")

@@ -91,27 +91,41 @@ def plot_image_fit(photo_srgb, fit, edited_srgb, path: str | Path, edit_label: s
     plt = _pyplot()
     from .colorimetry import srgb_encode
 
-    fitted = fit.status <= PixelStatus.OUT_OF_MODEL
-    masked = lambda a: np.ma.masked_where(~fitted, a)  # noqa: E731
+    skin = (fit.status == PixelStatus.SUCCESS) | (fit.status == PixelStatus.MAX_STEPS)
+    masked = lambda a: np.ma.masked_where(~skin, a)  # noqa: E731
+    # colour ranges from the skin's values, so that one stray pixel cannot flatten a map
+    upper = lambda a: float(np.percentile(a[skin], 99.5)) if skin.any() else 1.0  # noqa: E731
     panels = [
         ("photo", photo_srgb, {}),
         ("reconstruction", np.clip(np.asarray(srgb_encode(np.clip(fit.fitted_linear_rgb, 0, 1))), 0, 1), {}),
-        ("melanin C_m", masked(fit.melanin), {"cmap": "copper_r"}),
-        ("haemoglobin C_h", masked(fit.haemoglobin), {"cmap": "Reds"}),
-        ("shading", masked(fit.shading), {"cmap": "gray"}),
+        ("melanin C_m", masked(fit.melanin), {"cmap": "copper_r", "vmin": 0, "vmax": upper(fit.melanin)}),
+        ("haemoglobin C_h", masked(fit.haemoglobin), {"cmap": "Reds", "vmin": 0, "vmax": upper(fit.haemoglobin)}),
+        ("shading", masked(fit.shading), {"cmap": "gray", "vmin": 0, "vmax": upper(fit.shading)}),
+    ]
+    if fit.melanin_se is not None:
+        panels += [
+            ("C_m standard error", masked(fit.melanin_se), {"cmap": "viridis", "vmin": 0, "vmax": upper(fit.melanin_se)}),
+            ("C_h standard error", masked(fit.haemoglobin_se), {"cmap": "viridis", "vmin": 0, "vmax": upper(fit.haemoglobin_se)}),
+        ]
+    panels += [
         ("CIEDE2000", masked(fit.residual_dE2000), {"cmap": "magma", "vmin": 0, "vmax": 2}),
         ("status", fit.status, {"cmap": "tab10", "vmin": -0.5, "vmax": 9.5, "interpolation": "nearest"}),
         (edit_label, edited_srgb, {}),
     ]
-    fig, axes = plt.subplots(2, 4, figsize=(13, 7.2))
+    cols = (len(panels) + 1) // 2
+    fig, axes = plt.subplots(2, cols, figsize=(3.3 * cols, 7.2), squeeze=False)
+    for ax in axes.ravel()[len(panels):]:
+        ax.axis("off")
     for ax, (title, image, style) in zip(axes.ravel(), panels):
         shown = ax.imshow(image, **style)
         if image.ndim == 2 and title != "status":
             fig.colorbar(shown, ax=ax, fraction=0.046, pad=0.03)
         ax.set_title(title)
         ax.axis("off")
+        if title == "status":
+            status_axis = ax
     names = ", ".join(f"{int(s)} {s.name.lower()}" for s in PixelStatus if np.any(fit.status == s))
-    axes[1][2].set_title(f"status\n{names}", fontsize=8)
+    status_axis.set_title(f"status\n{names}", fontsize=7, wrap=True)
     fig.tight_layout()
     fig.savefig(path, dpi=110)
     plt.close(fig)

@@ -28,7 +28,8 @@ def test_round_trip_recovers_smooth_512_maps():
     """The issue's bar: a 512 x 512 rendering of smooth maps inverted to median <= 1e-4 and
     99th percentile <= 1e-3 in melanin and haemoglobin."""
     melanin, haemoglobin, shading = smooth_maps(512)
-    fit = fit_image(render_maps(melanin, haemoglobin, shading, model=DJ2006), model=DJ2006, progress=False)
+    rgb = render_maps(melanin, haemoglobin, shading, model=DJ2006)
+    fit = fit_image(rgb, model=DJ2006, prior=False, white_balance="none", progress=False)
     assert np.mean(fit.status == PixelStatus.SUCCESS) > 0.999
     for got, true in ((fit.melanin, melanin), (fit.haemoglobin, haemoglobin)):
         error = np.abs(got - true)
@@ -38,21 +39,45 @@ def test_round_trip_recovers_smooth_512_maps():
     assert fit.summary()["median_dE2000"] < 1e-4
 
 
-def test_default_model_images_round_trip_where_its_colour_map_does_not_fold():
-    """The calibrated model through the same camera: every pixel fitted and its colour reproduced; the
-    parameters come back exactly except where two parameter sets give the same colour (heavy melanin
-    with much blood), which an image fit alone cannot tell apart."""
+def test_default_model_resolves_its_fold_with_the_prior_and_the_shading_field():
+    """The calibrated model's colour map folds over a region (heavy melanin with much blood looks like
+    less of both at another shading). Maximum likelihood lands isolated pixels on the wrong branch;
+    the population prior and the smooth shading field put every pixel on the right one, with the
+    prior's bias on a noise-free rendering (colour_noise 0.1 %) within 10 % at the 99th percentile."""
+    from skinfit._spatial import speckle_fraction
+    from skinfit.image_fit import _population_blend
+
     melanin, haemoglobin, shading = smooth_maps(64)
-    rgb = render_maps(melanin, haemoglobin, shading)
-    fit = fit_image(rgb, progress=False)
-    assert fit.model_name == skinfit.SkinModel.default().name != "dj2006"
-    assert np.mean(fit.status == PixelStatus.SUCCESS) > 0.99
+    blend = _population_blend(skinfit.SkinModel.default())
+    rgb = render_maps(melanin, haemoglobin, shading, melanin_blend=blend)
+    ml = fit_image(rgb, prior=False, white_balance="none", progress=False)
+    assert ml.model_name == skinfit.SkinModel.default().name != "dj2006"
+    assert np.all(ml.melanin_blend[ml.status == 0] == np.float32(blend))
+    ml_error = np.abs(ml.melanin - melanin) / melanin
+    assert np.mean(ml_error[ml.status == 0] > 0.25) > 0.01  # the fold shows without the priors
+
+    fit = fit_image(rgb, white_balance="none", colour_noise=0.001, progress=False)
     ok = fit.status == PixelStatus.SUCCESS
-    assert np.percentile(fit.residual_dE2000[ok], 99) < 1e-3
-    error = np.abs(fit.melanin - melanin)
-    assert np.median(error) < 1e-5
-    unfolded = ok & (melanin < 0.2)
-    assert unfolded.mean() > 0.3 and np.percentile(error[unfolded], 99) < 1e-4
+    assert ok.mean() > 0.99
+    error = np.abs(fit.melanin - melanin) / melanin
+    assert np.percentile(error[ok], 99) <= 0.10 and error[ok].max() < 0.25  # no pixel on the other branch
+    assert speckle_fraction(fit.melanin, ok) == 0.0
+    assert np.percentile(fit.residual_dE2000[ok], 99) < 0.2
+
+
+def test_standard_errors_match_the_scatter_of_noisy_fits():
+    """The Laplace standard error of a pixel against the spread of maximum-likelihood fits to
+    copies of it with relative noise colour_noise (Monte Carlo)."""
+    noise = 0.002
+    rgb = render_maps(np.array([[0.05]]), np.array([[0.02]]), np.array([[0.6]]), model=DJ2006)[0, 0]
+    rng = np.random.default_rng(1)
+    copies = rgb * (1.0 + noise * rng.standard_normal((4000, 3)))
+    maps = fit_pixels(copies, model=DJ2006, prior=False, colour_noise=noise, progress=False)
+    ok = maps["status"] == PixelStatus.SUCCESS
+    assert ok.mean() > 0.99
+    for name in ("melanin", "haemoglobin"):
+        spread, se = np.std(maps[name][ok]), np.median(maps[f"{name}_se"][ok])
+        assert 0.8 < se / spread < 1.25, (name, se, spread)
 
 
 def test_exact_polish_removes_the_spline_error(rendered_64):
@@ -99,9 +124,9 @@ def test_cli_fits_a_png_and_renders_an_edit(tmp_path, rendered_64, capsys):
     photo = tmp_path / "face.png"
     crop = (slice(32, 56), slice(32, 64))  # moderate melanin: with heavy melanin, quantised colours are ill-posed
     write_png(photo, np.asarray(srgb_encode(np.clip(rgb[crop], 0, 1))), bits=16)
-    assert cli.main(["fit-image", str(photo), "--out", str(tmp_path / "out"), "--model", "dj2006"]) == 0
+    assert cli.main(["fit-image", str(photo), "--out", str(tmp_path / "out"), "--model", "dj2006", "--no-prior", "--white-balance", "none"]) == 0
     channels, attributes = read_exr_channels(tmp_path / "out" / "face_maps.exr")
-    assert set(channels) == {"melanin", "melanin_blend", "haemoglobin", "shading", "residual_dE2000", "status"}
+    assert set(channels) == {"melanin", "melanin_blend", "haemoglobin", "shading", "residual_dE2000", "status", "melanin_se", "haemoglobin_se"}
     fitted = channels["status"] == PixelStatus.SUCCESS
     assert fitted.mean() > 0.95
     # 16-bit quantisation limits the recovery, not the solver
@@ -133,9 +158,9 @@ def test_white_balance_brings_an_off_balance_image_into_the_gamut():
 
     melanin, haemoglobin, shading = smooth_maps(24)
     rgb = render_maps(melanin, haemoglobin, shading, model=DJ2006) * np.array([0.8, 1.0, 1.3])  # far off balance
-    plain = fit_image(rgb, model=DJ2006, progress=False)
+    plain = fit_image(rgb, model=DJ2006, white_balance="none", progress=False)
     calibration = calibrate(rgb.reshape(-1, 3), melanin_blend=0.7, model=DJ2006)
-    balanced = fit_image(rgb, white_balance=calibration.white_balance, model=DJ2006, progress=False)
+    balanced = fit_image(rgb, white_balance=calibration.white_balance, model=DJ2006, prior=False, progress=False)
     assert np.mean(plain.status == PixelStatus.SUCCESS) < 0.8
     assert np.mean(balanced.status == PixelStatus.SUCCESS) > 0.95
     assert calibration.score < 1e-3
@@ -217,3 +242,62 @@ def test_cli_takes_a_one_channel_mask(tmp_path, rendered_64):
     fit = fit_image(photo, mask=tmp_path / "mask.png", model=DJ2006, progress=False)  # the first pixel is fitted here,
     masked_first = fit_image(photo, mask=np.fliplr(keep), model=DJ2006, progress=False)  # and masked here
     assert fit.summary()["melanin_blend"] == masked_first.summary()["melanin_blend"] == 0.7
+
+
+def test_glints_and_non_skin_get_their_own_status_and_no_maps():
+    """A white highlight on skin is SPECULAR, a colour fitted only at the box's edge NOT_SKIN or
+    OUT_OF_MODEL; none of them carries melanin or haemoglobin."""
+    y, x = np.mgrid[0:40, 0:40] / 39
+    rgb = render_maps(0.04 + 0.02 * x, 0.015 + 0.01 * y, np.full((40, 40), 0.8))
+    rgb[10:13, 10:13] += 0.25  # a glint: the skin plus white light
+    rgb[30:33, 5:8] = (0.05, 0.035, 0.02)  # dark brown hair
+    rgb[30:33, 30:33] = (0.1, 0.3, 0.6)  # blue cloth
+    fit = fit_image(rgb, white_balance="none", progress=False)
+    assert np.all(fit.status[10:13, 10:13] == PixelStatus.SPECULAR)
+    for patch in ((slice(30, 33), slice(5, 8)), (slice(30, 33), slice(30, 33))):
+        assert np.all(np.isin(fit.status[patch], (PixelStatus.NOT_SKIN, PixelStatus.OUT_OF_MODEL)))
+    not_skin = fit.status >= PixelStatus.NOT_SKIN
+    assert np.all(fit.melanin[not_skin] == 0) and np.all(fit.haemoglobin[not_skin] == 0)
+    assert fit.skin_mask.mean() > 0.97 and not fit.skin_mask[10:13, 10:13].any()
+
+
+def test_regularisation_smooths_noise_and_keeps_edges():
+    """Strong regularisation against none on a noisy rendering with a melanin step: less than half
+    the pixel-to-pixel scatter inside the regions, the regions' medians where they were, and the
+    step still a step."""
+    y, x = np.mgrid[0:48, 0:48] / 47
+    melanin = np.where(x < 0.5, 0.03, 0.09)
+    haemoglobin = 0.015 + 0.01 * y
+    clean = render_maps(melanin, haemoglobin, np.full((48, 48), 0.8))
+    noisy = clean * (1 + 0.01 * np.random.default_rng(2).standard_normal(clean.shape))
+    # colour_noise says how noisy the input is: the priors weigh against it
+    off = fit_image(noisy, white_balance="none", regularisation="off", colour_noise=0.01, progress=False)
+    strong = fit_image(noisy, white_balance="none", regularisation="strong", colour_noise=0.01, progress=False)
+    ok = (off.status == 0) & (strong.status == 0)
+    assert ok.mean() > 0.9  # 1 % noise takes some colours out of the gamut
+    for region in (ok & (x < 0.4), ok & (x > 0.6)):
+        log_off, log_strong = np.log(off.melanin[region]), np.log(strong.melanin[region])
+        assert np.std(log_strong) < 0.5 * np.std(log_off)
+        assert abs(np.median(log_strong) - np.median(log_off)) < 0.05
+    left, right = np.median(strong.melanin[:, 20:23]), np.median(strong.melanin[:, 25:28])
+    assert right / left > 2.0  # the factor-3 step keeps most of its height two pixels from the edge
+
+
+def test_a_real_albedo_capture_with_default_settings():
+    """BioSkin's test capture 2 (MIT; downscaled 4x, tests/data) with its head mask: real skin,
+    unknown white balance. Its mask holds hair, brows, eyes, lips and background besides skin."""
+    from pathlib import Path
+
+    from skinfit._spatial import speckle_fraction
+    from skinfit.images import read_mask
+
+    data = Path(__file__).parent / "data"
+    fit = fit_image(data / "face2_albedo_quarter.png", mask=data / "face2_mask_quarter.png", progress=False)
+    mask = read_mask(data / "face2_mask_quarter.png") > 0
+    skin = fit.status == PixelStatus.SUCCESS
+    assert skin[mask].mean() > 0.75
+    assert np.median(fit.residual_dE2000[mask]) <= 0.2
+    assert 0.01 <= np.median(fit.melanin[skin]) <= 0.15 and 0.002 <= np.median(fit.haemoglobin[skin]) <= 0.05
+    assert speckle_fraction(fit.melanin, skin) < 0.02
+    gains = np.asarray(fit.white_balance)
+    assert np.all((gains > 0.6) & (gains < 1.6))

@@ -1,0 +1,191 @@
+"""Image fits on real inputs with the default settings: speed, coverage, reconstruction, smoothness.
+
+Run: python -m benchmarks.fit_photos [--scipy-n 100] [--memory-size 4096] [--out benchmarks/results]
+
+Inputs (each with its mask):
+
+- the demo photo (NASA portrait, 8-bit sRGB, warm studio light) with the shipped skin mask
+  ``data/eileen_collins_skin_mask.png`` (made without the skin model: ``benchmarks.demo_skin_mask``);
+- a real cross-polarised face albedo capture (BioSkin test image 2, MIT) downscaled 4x, shipped in
+  ``tests/data/``; and, where ``../shared/data/face-albedo/`` exists, the 0.4 MP original. Its mask is
+  a head mask: it holds hair, brows, closed eyes, lips and some background as well as skin.
+
+Per input, with ``fit_image``'s defaults (calibrated model, white balance fitted, population prior,
+light regularisation): seconds per megapixel of a second call (compiled, colour table built), the
+first call, the share of the mask ``SUCCESS``, CIEDE2000 over the whole mask (every pixel the fit
+wrote), the share of skin pixels whose melanin is off its 3 x 3 median by a factor 2, and the skin's
+median melanin and haemoglobin. Baseline in the same run: ``scipy.optimize.least_squares`` per pixel
+(C_m, C_h, shading; maximum likelihood) on the same model through a jitted single-pixel colour, on
+``--scipy-n`` skin pixels of each input. Peak memory: ``skinfit fit-image`` with its defaults on a
+4096 x 4096 tiling of the capture, in a fresh process.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import platform
+import resource
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import scipy.optimize
+
+import skinfit
+from skinfit._spatial import speckle_fraction
+from skinfit.colorimetry import linear_srgb_weights
+from skinfit.colour_table import COLOUR_WAVELENGTHS_NM, params_rgb
+from skinfit.image_fit import PixelStatus, fit_image
+from skinfit.images import read_linear_rgb, read_mask
+
+ROOT = Path(__file__).resolve().parents[1]
+INPUTS = {
+    "demo photo (160x192, skin mask)": (ROOT / "data/eileen_collins_face.png", ROOT / "data/eileen_collins_skin_mask.png"),
+    "albedo capture, 1/4 (125x199, head mask)": (ROOT / "tests/data/face2_albedo_quarter.png", ROOT / "tests/data/face2_mask_quarter.png"),
+    "albedo capture (501x798, head mask)": (ROOT.parent / "shared/data/face-albedo/face2_albedo.png",
+                                            ROOT.parent / "shared/data/face-albedo/face2_mask.png"),
+}
+
+
+def measure(rgb, mask) -> dict:
+    start = time.perf_counter()
+    fit_image(rgb, mask=mask, progress=False)
+    first = time.perf_counter() - start
+    start = time.perf_counter()
+    fit = fit_image(rgb, mask=mask, progress=False)
+    seconds = time.perf_counter() - start
+    skin = fit.status == PixelStatus.SUCCESS
+    delta_e = fit.residual_dE2000[mask]
+    return {
+        "fit": fit,
+        "pixels": int(mask.size),
+        "mask_pixels": int(mask.sum()),
+        "first_call_s": first,
+        "s": seconds,
+        "s_per_megapixel": seconds / (mask.size / 1e6),
+        "mask_success_fraction": float(skin[mask].mean()),
+        "statuses_in_mask": {s.name: int(np.sum(fit.status[mask] == s)) for s in PixelStatus if np.any(fit.status[mask] == s)},
+        "mask_dE2000_median": float(np.median(delta_e)),
+        "mask_dE2000_p95": float(np.percentile(delta_e, 95)),
+        "melanin_speckle_fraction": speckle_fraction(fit.melanin, skin),
+        "melanin_median": float(np.median(fit.melanin[skin])),
+        "haemoglobin_median": float(np.median(fit.haemoglobin[skin])),
+        "white_balance": list(fit.white_balance),
+        "melanin_blend": fit.summary()["melanin_blend"],
+    }
+
+
+def scipy_baseline(rgb, fit, n, seed=0) -> dict:
+    """Seconds per megapixel of per-pixel SciPy least squares on ``n`` skin pixels of the fit."""
+    model = skinfit.SkinModel.default()
+    weights = jnp.asarray(linear_srgb_weights(COLOUR_WAVELENGTHS_NM))
+    blend = fit.summary()["melanin_blend"]
+    colour = jax.jit(lambda x: x[2] * params_rgb(jnp.stack([x[0], blend, x[1]])[None], weights, model)[0])
+    jacobian = jax.jit(jax.jacfwd(lambda x: x[2] * params_rgb(jnp.stack([x[0], blend, x[1]])[None], weights, model)[0]))
+    skin = np.flatnonzero(fit.status.ravel() == PixelStatus.SUCCESS)
+    pick = np.random.default_rng(seed).choice(skin, min(n, skin.size), replace=False)
+    pixels = rgb.reshape(-1, 3)[pick] / np.asarray(fit.white_balance)
+    colour(jnp.array([0.05, 0.02, 1.0])).block_until_ready()
+    jacobian(jnp.array([0.05, 0.02, 1.0])).block_until_ready()
+    start = time.perf_counter()
+    for target in pixels:
+        scipy.optimize.least_squares(
+            lambda x: np.asarray(colour(jnp.asarray(x))) - target, x0=[0.05, 0.02, 1.0], jac=lambda x: np.asarray(jacobian(jnp.asarray(x))),
+            bounds=([0, 0, 0], [0.5, 0.15, np.inf]), xtol=1e-10, ftol=1e-10,
+        )
+    return {"s_per_megapixel": (time.perf_counter() - start) / len(pixels) * 1e6, "pixels_timed": int(len(pixels))}
+
+
+def peak_memory(rgb, size) -> dict:
+    """Peak resident memory (GiB) and wall time of ``skinfit fit-image`` (defaults) on a size x size
+    EXR tiled from ``rgb``, in a fresh process."""
+    from skinfit.images import write_exr
+
+    reps = -(-size // min(rgb.shape[:2]))
+    big = np.tile(rgb, (reps, reps, 1))[:size, :size]
+    with tempfile.TemporaryDirectory() as folder:
+        path = Path(folder) / "big.exr"
+        write_exr(path, {c: big[..., i].astype(np.float32) for i, c in enumerate("RGB")})
+        del big
+        start = time.perf_counter()
+        done = subprocess.run([sys.executable, "-m", "skinfit", "fit-image", str(path), "--out", str(Path(folder) / "out"), "--quiet"],
+                              capture_output=True, text=True)
+        seconds = time.perf_counter() - start
+        peak_kib = resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss
+    if done.returncode != 0:
+        return {"error": done.stderr[-500:]}
+    return {"pixels": size * size, "peak_rss_gib": peak_kib / 2**20, "wall_s_incl_start_and_compile": seconds,
+            "s_per_megapixel_incl_start": seconds / (size * size / 1e6), "summary_line": done.stdout.strip().splitlines()[-1]}
+
+
+def main(argv=None):
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("--scipy-n", type=int, default=100)
+    parser.add_argument("--memory-size", type=int, default=4096, help="0 skips the peak-memory run")
+    parser.add_argument("--out", default="benchmarks/results")
+    args = parser.parse_args(argv)
+    results = {}
+    for name, (image, mask_path) in INPUTS.items():
+        if not image.exists():
+            print(f"{name}: {image} not found, skipped")
+            continue
+        rgb, _ = read_linear_rgb(image)
+        mask = read_mask(mask_path) > 0
+        result = measure(rgb, mask)
+        result["scipy_least_squares"] = scipy_baseline(rgb, result.pop("fit"), args.scipy_n)
+        result["speedup_vs_scipy"] = result["scipy_least_squares"]["s_per_megapixel"] / result["s_per_megapixel"]
+        results[name] = result
+        print(f"{name}: {result['s_per_megapixel']:.2f} s/MP ({result['speedup_vs_scipy']:.0f}x SciPy), "
+              f"mask SUCCESS {100 * result['mask_success_fraction']:.1f} %, CIEDE2000 median {result['mask_dE2000_median']:.3f} "
+              f"p95 {result['mask_dE2000_p95']:.2f}, speckle {100 * result['melanin_speckle_fraction']:.2f} %, "
+              f"C_m {result['melanin_median']:.3f}, C_h {result['haemoglobin_median']:.4f}", flush=True)
+    memory = None
+    if args.memory_size:
+        capture, _ = read_linear_rgb(INPUTS["albedo capture, 1/4 (125x199, head mask)"][0])
+        memory = peak_memory(capture, args.memory_size)
+        print(f"{args.memory_size}^2: {memory}")
+    record = {
+        "date": time.strftime("%Y-%m-%d"),
+        "machine": f"{platform.machine()}, {platform.processor() or 'cpu'}, jax {jax.__version__} on {jax.default_backend()}",
+        "model": skinfit.SkinModel.default().name,
+        "inputs": results,
+        "peak_memory_default_settings": memory,
+    }
+    out = Path(args.out)
+    out.mkdir(parents=True, exist_ok=True)
+    (out / "fit_photos.json").write_text(json.dumps(record, indent=2))
+    (out / "fit_photos.md").write_text(markdown(record) + "\n")
+
+
+def markdown(record) -> str:
+    """The README's table of real inputs (kept equal to the README by tests/test_readme.py)."""
+    lines = [
+        f"Real inputs, default settings ({record['model']}; `python -m benchmarks.fit_photos`, {record['date']}, "
+        f"{record['machine']}); CIEDE2000 over every mask pixel; speckle: skin pixels whose melanin is off its 3×3 median by 2×:",
+        "",
+        "| input | mask SUCCESS | CIEDE2000 median / p95 | speckle | C_m / C_h median | gains | s/MP (first call) | × SciPy |",
+        "|---|---|---|---|---|---|---|---|",
+    ]
+    for name, r in record["inputs"].items():
+        gains = ", ".join(f"{g:.2f}" for g in r["white_balance"])
+        lines.append(
+            f"| {name} | {100 * r['mask_success_fraction']:.1f} % | {r['mask_dE2000_median']:.3f} / {r['mask_dE2000_p95']:.2f} | "
+            f"{100 * r['melanin_speckle_fraction']:.2f} % | {r['melanin_median']:.3f} / {r['haemoglobin_median']:.4f} | {gains} | "
+            f"{r['s_per_megapixel']:.1f} ({r['first_call_s']:.0f} s) | {r['speedup_vs_scipy']:.0f} |"
+        )
+    memory = record.get("peak_memory_default_settings")
+    if memory and "peak_rss_gib" in memory:
+        lines += ["", f"4096×4096 (the capture tiled) through `skinfit fit-image` with the defaults in a fresh process: peak resident "
+                      f"{memory['peak_rss_gib']:.2f} GiB, {memory['wall_s_incl_start_and_compile']:.0f} s including start, calibration and compilation "
+                      f"({memory['s_per_megapixel_incl_start']:.1f} s/MP)."]
+    return "\n".join(lines)
+
+
+if __name__ == "__main__":
+    main()
