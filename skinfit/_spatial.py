@@ -17,9 +17,10 @@ def smooth_field(values: np.ndarray, weights: np.ndarray, sigma_px: float) -> np
     block = max(1, int(sigma_px // 2))
     hb, wb = -(-h // block), -(-w // block)
     num, den = np.zeros((hb, wb)), np.zeros((hb, wb))
-    for top in range(0, h, 256 * block):  # bands of rows: the products stay small
-        v = np.asarray(values[top : top + 256 * block], dtype=np.float64)
-        wt = np.asarray(weights[top : top + 256 * block], dtype=np.float64)
+    band = block * max(1, 256 // block)  # rows per band, whole blocks: the float64 products stay small
+    for top in range(0, h, band):
+        v = np.asarray(values[top : top + band], dtype=np.float64)
+        wt = np.asarray(weights[top : top + band], dtype=np.float64)
         wt = np.where(np.isfinite(v), wt, 0.0)
         v = np.where(wt > 0, v, 0.0)
         rows = -(-v.shape[0] // block)

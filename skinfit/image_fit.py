@@ -800,7 +800,7 @@ def _shading_field(maps) -> np.ndarray:
     return smooth_field(log_k, near, sigma)
 
 
-def _refit(rgb, gains, maps, where, options, band_pixels: int = 1 << 20, **overrides):
+def _refit(rgb, gains, maps, where, options, band_pixels: int = 1 << 18, **overrides):
     """Fit again the pixels ``where`` (h, w) with ``overrides`` (per-pixel arrays (h, w, ...) are
     taken at those pixels) and write the results into ``maps``, ``band_pixels`` at a time (the
     working memory of a 4096 x 4096 image stays that of one band)."""
@@ -915,7 +915,7 @@ def _lstsq2(basis, target):
                      (gram[:, 0, 0] * rhs[:, 1] - gram[:, 0, 1] * rhs[:, 0]) / det], axis=-1)
 
 
-def _fit_in_bands(rgb, gains, mask, options, progress, band_pixels: int = 1 << 20):
+def _fit_in_bands(rgb, gains, mask, options, progress, band_pixels: int = 1 << 18):
     """``fit_pixels`` over bands of rows of at most ``band_pixels`` pixels, into preallocated
     float32 maps (as the EXR stores them; ``fit_pixels`` returns float64): the working memory of a
     4096 x 4096 image stays that of one band. The shading reference that picks the fold's branch
