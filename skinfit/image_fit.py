@@ -2,30 +2,33 @@
 
 Camera model: a pixel's linear sRGB (D65 white = 1) is
 
-    rgb = shading * M W R(lambda; C_m, beta_m, C_h)
+    rgb = gains * shading * M W R(lambda; C_m, beta_m, C_h)
 
-with R the DJ2006 diffuse reflectance at 400-700 nm / 10 nm, W the CIE 1931 2-degree colour
-matching functions weighted by the illuminant (D65 by default, Bradford-adapted to D65 otherwise)
-and M the XYZ -> linear sRGB matrix (``skinfit.colorimetry``). Three channels carry three unknowns
-per pixel: C_m, C_h and the shading; the melanin blend is one value for the whole image (given, or
-chosen once by ``skinfit.calibration``).
+with R the skin model's diffuse reflectance at 400-700 nm / 10 nm, W the CIE 1931 2-degree colour
+matching functions weighted by the illuminant (D65 by default, Bradford-adapted to D65 otherwise),
+M the XYZ -> linear sRGB matrix (``skinfit.colorimetry``) and gains the camera's white balance.
+Three channels carry three unknowns per pixel: C_m, C_h and the shading; the melanin blend and the
+gains are one value for the whole image (given, or fitted once by ``skinfit.calibration``).
 
-Per pixel, over fixed-size chunks compiled once:
+``fit_pixels``, per pixel, over fixed-size chunks compiled once:
 
 1. warm start: the inverse table (``skinfit.colour_table``) gives one or two starts from the
    pixel's chromaticity, each refined by a Newton step in chromaticity; the second (a second
    branch of the fold) only where it differs;
-2. solve: Levenberg-Marquardt in lock-step on the model's colour spline (exact to ~3e-7 in linear sRGB),
-   with the shading eliminated in closed form (variable projection: for a colour m the best
+2. solve: Levenberg-Marquardt in lock-step on the model's colour spline (exact to ~3e-7 in linear
+   sRGB), with the shading eliminated in closed form (variable projection: for a colour m the best
    shading is t.m / m.m), the residual relative to the pixel's brightness so that dark and bright
-   pixels weigh alike, and the roots projected onto the box; converged when the undamped
-   Gauss-Newton step still to go is at most ``step_tol``. The others are gathered for more steps,
-   and what remains goes to optimistix's Levenberg-Marquardt;
+   pixels weigh alike, the prior on ln C_m and ln C_h as two more residual rows (MAP; weights 0
+   without one), and the roots projected onto the box; converged when the undamped Gauss-Newton
+   step still to go is at most ``step_tol``. The others are gathered for more steps, and what
+   remains goes to optimistix's Levenberg-Marquardt;
 3. optionally (``exact_steps``), Gauss-Newton steps on the exact forward model remove the
    spline's last ~1e-7.
 
-Where both branches fit, the one whose shading is nearest the image's typical shading wins.
-Pixels that cannot be fitted get a status code and zeros, never NaN.
+Where both branches fit, the one whose shading is nearest a reference wins. ``fit_image`` adds
+what one pixel cannot know: the white balance from the skin, the fold's branch chosen against the
+smooth shading field of the neighbourhood, an edge-preserving spatial prior, and the statuses of
+pixels that are not skin. Pixels that cannot be fitted get a status code and zeros, never NaN.
 """
 
 from __future__ import annotations
@@ -836,7 +839,7 @@ def _regularise(rgb, gains, maps, field, options, sd, size):
     model = options["model"]
     centres, sds = [], []
     population = model.prior
-    for i, name in enumerate(("melanin", "haemoglobin")):
+    for name in ("melanin", "haemoglobin"):
         log_c = np.log(np.maximum(maps[name], np.float32(1e-9)))
         fill = smooth_field(log_c, fitted, _field_sigma(log_c.shape))
         centre = neighbourhood_median(log_c, fitted, size, fill)
@@ -868,8 +871,9 @@ _IMPLAUSIBLE_Z = 5.0
 def _classify(rgb, gains, maps, field, model):
     """Statuses of pixels that fit the model badly or implausibly: ``SPECULAR`` (the smooth local
     skin colour at no less than 80 % of the local shading plus a white component of at least 10 %
-    of the pixel), ``NOT_SKIN`` (roots pinned at the box's far edge, ln C more than ``_IMPLAUSIBLE_Z`` prior standard deviations from the
-    population mean, or a shading 3x off the smooth field of its surroundings: hair, brows, eyes).
+    of the pixel), ``NOT_SKIN`` (roots pinned at the box's far edge, ln C more than
+    ``_IMPLAUSIBLE_Z`` prior standard deviations from the population mean, or a shading 3x off the
+    smooth field of its surroundings: hair, brows, eyes).
     Their maps are zeroed: a value no skin has is never presented as skin."""
     from ._spatial import smooth_field
 
