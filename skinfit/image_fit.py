@@ -856,6 +856,9 @@ def _regularise(rgb, gains, maps, field, options, sd, size):
            shading_reference=field, prior=True, initial=(maps["melanin"], maps["haemoglobin"]))
 
 
+#: Candidate pixels per chunk of the glint test.
+_CLASSIFY_CHUNK = 1 << 18
+
 #: Relative residual below which a pixel is the neighbourhood's skin colour plus white (a glint).
 _SPECULAR_FIT = 0.03
 
@@ -895,15 +898,17 @@ def _classify(rgb, gains, maps, field, model):
     skin = status == PixelStatus.SUCCESS
     if candidates[0].size and skin.any():
         sigma = _field_sigma(status.shape)
-        local = np.stack([smooth_field(maps["fitted_rgb"][..., c] / np.maximum(maps["shading"], np.float32(1e-12)), skin, sigma)[candidates]
-                          for c in range(3)], axis=-1)
-        t = rgb[candidates]
-        basis = np.stack([local, np.broadcast_to(gains, local.shape)], axis=-1)  # (n, 3, 2)
-        coef = _lstsq2(basis, t)
-        residual = np.linalg.norm(t - np.einsum("nck,nk->nc", basis, coef), axis=-1) / np.maximum(np.linalg.norm(t, axis=-1), 1e-12)
-        white_share = coef[:, 1] * np.mean(gains) / np.maximum(np.mean(t, axis=-1), 1e-12)
-        glint = (coef[:, 0] > 0.8 * field[candidates]) & (white_share > 0.1) & (residual < _SPECULAR_FIT)
-        status[tuple(i[glint] for i in candidates)] = PixelStatus.SPECULAR
+        fields = [smooth_field(maps["fitted_rgb"][..., c] / np.maximum(maps["shading"], np.float32(1e-12)), skin, sigma) for c in range(3)]
+        for start in range(0, candidates[0].size, _CLASSIFY_CHUNK):  # bounded temporaries on a 4096^2 image
+            index = tuple(i[start : start + _CLASSIFY_CHUNK] for i in candidates)
+            local = np.stack([f[index] for f in fields], axis=-1)
+            t = rgb[index]
+            basis = np.stack([local, np.broadcast_to(gains, local.shape)], axis=-1)  # (n, 3, 2)
+            coef = _lstsq2(basis, t)
+            residual = np.linalg.norm(t - np.einsum("nck,nk->nc", basis, coef), axis=-1) / np.maximum(np.linalg.norm(t, axis=-1), 1e-12)
+            white_share = coef[:, 1] * np.mean(gains) / np.maximum(np.mean(t, axis=-1), 1e-12)
+            glint = (coef[:, 0] > 0.8 * field[index]) & (white_share > 0.1) & (residual < _SPECULAR_FIT)
+            status[tuple(i[glint] for i in index)] = PixelStatus.SPECULAR
     not_skin = status >= PixelStatus.NOT_SKIN
     for name in ("melanin", "haemoglobin", "shading", "melanin_se", "haemoglobin_se"):
         maps[name][not_skin] = 0.0
