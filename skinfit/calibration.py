@@ -41,6 +41,7 @@ import dataclasses
 import numpy as np
 
 from .colorimetry import DEFAULT_ILLUMINANT
+from .fit_variables import prior_coordinate
 from .skin_model import resolve_model
 
 
@@ -138,7 +139,7 @@ def _negative_log_posterior(target, maps, fitted, prior, colour_noise, trim):
     residual = (target - maps["fitted_rgb"][fitted]) / np.linalg.norm(target, axis=-1, keepdims=True)
     total = np.sum(residual**2, axis=-1) / colour_noise**2
     for name in ("melanin", "haemoglobin"):
-        i = prior.names.index(name)
-        total = total + ((np.log(np.maximum(maps[name][fitted], 1e-9)) - float(prior.mean[i])) / float(prior.sd[i])) ** 2
+        mean, sd = prior.moments(name)
+        total = total + ((prior_coordinate(name, maps[name][fitted]) - mean) / sd) ** 2
     total = np.sort(total)
     return float(np.mean(total[: max(1, int(trim * len(total)))]))

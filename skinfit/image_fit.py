@@ -58,6 +58,7 @@ from .colour_table import (
     spline_rgb,
     warm_starts,
 )
+from .fit_variables import VARIABLES, prior_coordinate
 from .reflectance import model_with_options
 from .skin_model import SkinModel, Transport, cache_key, resolve_model
 
@@ -434,9 +435,9 @@ def _prior_rows(model, table, n, prior, colour_noise, mean, sd) -> np.ndarray:
     if mean is None or sd is None:
         if population is None:
             raise SkinfitInputError("prior=True needs a model with a population prior (the calibrated model) or prior_mean and prior_sd")
-        index = [population.names.index(name) for name in ("melanin", "haemoglobin")]
-        mean = np.asarray(population.mean)[index] if mean is None else mean
-        sd = np.asarray(population.sd)[index] if sd is None else sd
+        moments = np.array([population.moments(name) for name in ("melanin", "haemoglobin")])
+        mean = moments[:, 0] if mean is None else mean
+        sd = moments[:, 1] if sd is None else sd
     if not colour_noise > 0:
         raise SkinfitInputError(f"colour_noise must be positive, got {colour_noise}")
     mean = np.broadcast_to(np.asarray(mean, dtype=float), (*np.shape(mean)[:-1], 2)).reshape(-1, 2)
@@ -727,7 +728,8 @@ def fit_image(
             white_balance = "none"
     if melanin_blend is None:
         melanin_blend = _population_blend(model)
-    white_balance = {True: "auto", False: "none"}.get(white_balance, white_balance) if isinstance(white_balance, bool) else white_balance
+    if isinstance(white_balance, bool):
+        white_balance = "auto" if white_balance else "none"
     gains = np.ones(3)
     if fit_blend or (isinstance(white_balance, str) and white_balance == "auto"):
         from .calibration import calibrate
@@ -770,9 +772,7 @@ def _population_blend(model: SkinModel) -> float:
     prior = model.prior
     if prior is None or "melanin_blend" not in prior.names:
         return 0.7
-    from .fit_variables import VARIABLES
-
-    logit = float(prior.mean[prior.names.index("melanin_blend")])
+    logit, _ = prior.moments("melanin_blend")
     var = VARIABLES["melanin_blend"]
     return round(var.low + (var.high - var.low) / (1.0 + np.exp(-logit)), 3)
 
@@ -844,8 +844,7 @@ def _regularise(rgb, gains, maps, field, options, sd, size):
         fill = smooth_field(log_c, fitted, _field_sigma(log_c.shape))
         centre = neighbourhood_median(log_c, fitted, size, fill)
         if population is not None and options.get("prior", True) is not False:
-            j = population.names.index(name)
-            p_mean, p_sd = float(population.mean[j]), float(population.sd[j])
+            p_mean, p_sd = population.moments(name)
             precision = 1.0 / sd**2 + 1.0 / p_sd**2
             centre, combined = (centre / sd**2 + p_mean / p_sd**2) / precision, np.sqrt(1.0 / precision)
         else:
@@ -886,9 +885,8 @@ def _classify(rgb, gains, maps, field, model):
     population = model.prior
     if population is not None:
         for name in ("melanin", "haemoglobin"):
-            j = population.names.index(name)
-            z = (np.log(np.maximum(maps[name], np.float32(1e-9))) - float(population.mean[j])) / float(population.sd[j])
-            implausible = implausible | (np.abs(z) > _IMPLAUSIBLE_Z)
+            mean, sd = population.moments(name)
+            implausible = implausible | (np.abs(prior_coordinate(name, maps[name]) - mean) > _IMPLAUSIBLE_Z * sd)
     # another surface than the skin around it (hair, brows, eyes): a shading far from the field
     implausible = implausible | (np.abs(np.log(np.maximum(maps["shading"], 1e-12) / field)) > _OTHER_SURFACE)
     status[(status <= PixelStatus.OUT_OF_MODEL) & implausible] = PixelStatus.NOT_SKIN
@@ -904,7 +902,9 @@ def _classify(rgb, gains, maps, field, model):
             local = np.stack([f[index] for f in fields], axis=-1)
             t = rgb[index]
             basis = np.stack([local, np.broadcast_to(gains, local.shape)], axis=-1)  # (n, 3, 2)
-            coef = _lstsq2(basis, t)
+            # normal equations of the two columns, batched (1e-30: a black local colour)
+            gram = np.einsum("nck,ncl->nkl", basis, basis) + 1e-30 * np.eye(2)
+            coef = np.linalg.solve(gram, np.einsum("nck,nc->nk", basis, t)[..., None])[..., 0]
             residual = np.linalg.norm(t - np.einsum("nck,nk->nc", basis, coef), axis=-1) / np.maximum(np.linalg.norm(t, axis=-1), 1e-12)
             white_share = coef[:, 1] * np.mean(gains) / np.maximum(np.mean(t, axis=-1), 1e-12)
             glint = (coef[:, 0] > 0.8 * field[index]) & (white_share > 0.1) & (residual < _SPECULAR_FIT)
@@ -912,16 +912,6 @@ def _classify(rgb, gains, maps, field, model):
     not_skin = status >= PixelStatus.NOT_SKIN
     for name in ("melanin", "haemoglobin", "shading", "melanin_se", "haemoglobin_se"):
         maps[name][not_skin] = 0.0
-
-
-def _lstsq2(basis, target):
-    """Least-squares coefficients (n, 2) of targets (n, 3) on two columns (n, 3, 2)."""
-    gram = np.einsum("nck,ncl->nkl", basis, basis)
-    rhs = np.einsum("nck,nc->nk", basis, target)
-    det = gram[:, 0, 0] * gram[:, 1, 1] - gram[:, 0, 1] ** 2
-    det = np.where(np.abs(det) > 1e-300, det, 1e-300)
-    return np.stack([(gram[:, 1, 1] * rhs[:, 0] - gram[:, 0, 1] * rhs[:, 1]) / det,
-                     (gram[:, 0, 0] * rhs[:, 1] - gram[:, 0, 1] * rhs[:, 0]) / det], axis=-1)
 
 
 def _fit_in_bands(rgb, gains, mask, options, progress, band_pixels: int = 1 << 18):

@@ -126,6 +126,11 @@ class PopulationPrior(eqx.Module):
     sd: Float[Array, " n"]
     noise_rms: Float[Array, ""]
 
+    def moments(self, name: str) -> tuple[float, float]:
+        """(mean, sd) of ``name`` in its prior coordinate."""
+        i = self.names.index(name)
+        return float(self.mean[i]), float(self.sd[i])
+
 
 class SkinModel(eqx.Module):
     """Every constant of the two-layer skin model, and its forward method (see the module docstring).
