@@ -103,6 +103,11 @@ def _model_options(args) -> dict:
     return options
 
 
+#: Default wavelengths of profile exports, and those of a Mitsuba spectral export (nm).
+PROFILE_WAVELENGTHS = "400:700:5"
+MITSUBA_WAVELENGTHS = "360:830:10"
+
+
 def _cmd_spectrum(args) -> int:
     from .reflectance import diffuse_reflectance
 
@@ -119,7 +124,10 @@ def _cmd_profiles(args) -> int:
     if args.format != "table":
         from .renderers import renderer_profiles, write_renderer
 
-        result = renderer_profiles(_params(args), parse_wavelengths(args.wavelengths), illuminant=args.illuminant,
+        wavelengths = args.wavelengths
+        if args.format == "mitsuba-spectral" and wavelengths == PROFILE_WAVELENGTHS:
+            wavelengths = MITSUBA_WAVELENGTHS  # Mitsuba's spectral variants sample 360-830 nm
+        result = renderer_profiles(_params(args), parse_wavelengths(wavelengths), illuminant=args.illuminant,
                                    label=args.preset or "", **_model_options(args))
         fmt = "table" if args.format == "renderer-table" else args.format
         path = write_renderer(result, fmt, args.out)
@@ -169,9 +177,15 @@ def _cmd_textures(args) -> int:
     if missing:
         raise SkinfitInputError(f"{args.maps}: no {', '.join(missing)} channel (expected the maps EXR of fit-image)")
     textures = renderer_textures(channels, illuminant=args.illuminant, model=_model(args))
-    write_exr(args.out, textures, {"skinfit:units": "albedo: linear sRGB; mfp: mean free path 1/sigma_t' in mm",
-                                   "skinfit:source": str(args.maps)})
-    print(f"wrote {args.out}: albedo.R/G/B (linear sRGB) and mfp.R/G/B (mm)")
+    units = ("albedo: linear-sRGB diffuse albedo; sigma_t (mm^-1), ss_albedo, mfp = 1/sigma_t (mm): the medium whose exact "
+             "transport (index 1.4, isotropic) renders that albedo; base_colour, blender_radius (mm): the Blender Cycles Principled "
+             "BSDF inputs that render it")
+    write_exr(args.out, textures, {"skinfit:units": units, "skinfit:source": str(args.maps)})
+    print(f"wrote {args.out}: albedo, sigma_t, ss_albedo, mfp, base_colour and blender_radius .R/G/B")
+    if args.mitsuba:
+        from .renderers import write_mitsuba_textures
+
+        print(f"wrote {write_mitsuba_textures(textures, args.mitsuba)} with sigma_t.vol and albedo.vol")
     return 0
 
 
@@ -503,14 +517,18 @@ def build_parser() -> argparse.ArgumentParser:
     spectrum.set_defaults(run=_cmd_spectrum)
 
     profiles = sub.add_parser("profiles", help="write a spectral + RGB radial profile table")
-    _add_model_arguments(profiles, wavelengths="400:700:5")
+    _add_model_arguments(profiles, wavelengths=PROFILE_WAVELENGTHS)
     profiles.add_argument("--radii", default=DEFAULT_RADII, help=f"mm, START:STOP:N, log-spaced if START > 0 (default {DEFAULT_RADII})")
     profiles.add_argument("--illuminant", default="D65", help="illuminant of the RGB profiles (default D65)")
     profiles.add_argument("--out", required=True, help="output file (table: .csv, .npz or .exr)")
-    profiles.add_argument("--format", default="table", choices=("table", "renderer-table", "gaussians", "burley", "pbrt", "blender", "json"),
+    profiles.add_argument("--format", default="table",
+                          choices=("table", "renderer-table", "gaussians", "burley", "pbrt", "mitsuba", "mitsuba-spectral", "blender", "json"),
                           help="table: --radii as given (default); renderer-table: radii to 99.7 %% of the energy, normalised; "
                                "gaussians / burley: fits per RGB channel (JSON); pbrt: pbrt-v4 subsurface material; "
-                               "blender: Principled BSDF values (JSON); json: all fits and the medium")
+                               "mitsuba / mitsuba-spectral: Mitsuba 3 dielectric + homogeneous medium (XML; spectral: per "
+                               f"wavelength, {MITSUBA_WAVELENGTHS} nm unless --wavelengths); blender: Principled BSDF values "
+                               "compensated for Cycles (JSON); json: all fits and the media. Media are matched with exact "
+                               "transport (index 1.4, isotropic, mm)")
     profiles.set_defaults(run=_cmd_profiles)
 
     fit = sub.add_parser("fit-spectra", help="fit skin parameters to measured reflectance spectra")
@@ -602,6 +620,8 @@ def build_parser() -> argparse.ArgumentParser:
     textures = sub.add_parser("textures", help="albedo and subsurface-radius textures (EXR) from fitted maps")
     textures.add_argument("maps", metavar="MAPS.exr")
     textures.add_argument("--out", required=True, help="EXR to write")
+    textures.add_argument("--mitsuba", metavar="DIR", default=None,
+                          help="also write Mitsuba 3 volume grids (sigma_t.vol, albedo.vol) and skin_medium.xml to DIR")
     textures.add_argument("--illuminant", default="D65")
     _add_model_choice(textures)
     textures.set_defaults(run=_cmd_textures)

@@ -10,7 +10,9 @@ results at g = 0.8, MODEL.md 12).
 
 The result has the same convention as ``layered_reflectance``: diffuse reflectance at normal
 incidence with the specular reflection excluded and the entry Fresnel transmittance included,
-with its standard error from the spread over batches.
+with its standard error from the spread over batches. With ``radii_mm`` it is also resolved in
+radius: the reflectance that leaves the top within each distance of the beam (the energy within
+r, 2 pi int_0^r R(r') r' dr'), the radially resolved reference for profiles.
 """
 
 from __future__ import annotations
@@ -29,13 +31,20 @@ ROULETTE_SURVIVAL = 0.1
 
 @dataclasses.dataclass(frozen=True)
 class MonteCarloResult:
-    """Diffuse reflectance and transmittance of a stack, with standard errors (MC statistics)."""
+    """Diffuse reflectance and transmittance of a stack, with standard errors (MC statistics).
+
+    ``radii_mm`` (k,), ``reflectance_within`` (k,) and its ``reflectance_within_error`` (k,): the
+    reflectance leaving the top within each radius of the beam (empty unless radii were asked for).
+    """
 
     reflectance: float
     reflectance_error: float
     transmittance: float
     transmittance_error: float
     photons: int
+    radii_mm: np.ndarray = dataclasses.field(default_factory=lambda: np.zeros(0))
+    reflectance_within: np.ndarray = dataclasses.field(default_factory=lambda: np.zeros(0))
+    reflectance_within_error: np.ndarray = dataclasses.field(default_factory=lambda: np.zeros(0))
 
 
 def _fresnel(cos_i, n_from, n_to):
@@ -76,9 +85,11 @@ def monte_carlo_reflectance(
     ior_above: float = 1.0,
     ior_below: float = 1.0,
     batches: int = 10,
+    radii_mm: Sequence[float] | np.ndarray | None = None,
 ) -> MonteCarloResult:
     """Diffuse reflectance (and transmittance) of ``layers`` (top first, scalar fields, mm and
-    mm^-1; the last may be semi-infinite) for a normally incident pencil beam, by Monte Carlo."""
+    mm^-1; the last may be semi-infinite) for a normally incident pencil beam, by Monte Carlo;
+    with ``radii_mm`` (increasing, > 0) also the reflectance within each radius of the beam."""
     if isinstance(layers, Layer):
         layers = [layers]
     layers = list(layers)
@@ -90,6 +101,9 @@ def monte_carlo_reflectance(
         raise SkinfitInputError("only the bottom layer may be semi-infinite")
     if photons < batches or batches < 2:
         raise SkinfitInputError("need photons >= batches >= 2")
+    radii = np.zeros(0) if radii_mm is None else np.asarray(radii_mm, dtype=float).reshape(-1)
+    if radii.size and not (np.all(np.isfinite(radii)) and radii[0] > 0 and np.all(np.diff(radii) > 0)):
+        raise SkinfitInputError("radii_mm must be finite, positive and increasing")
     absorption, reduced, thickness, ior, g = props.T
     scattering = reduced / (1 - g)
     extinction = absorption + scattering
@@ -99,18 +113,22 @@ def monte_carlo_reflectance(
     rng = np.random.default_rng(seed)
     per_batch = photons // batches
     reflected, transmitted = np.zeros(batches), np.zeros(batches)
+    within = np.zeros((batches, radii.size))
     entry = 1.0 - ((ior[0] - ior_above) / (ior[0] + ior_above)) ** 2
     for b in range(batches):
-        r, t = _run_batch(per_batch, rng, absorption, scattering, extinction, g, tops, bottoms, n_index)
-        reflected[b], transmitted[b] = entry * r / per_batch, entry * t / per_batch
-    se = lambda x: float(np.std(x, ddof=1) / np.sqrt(batches))  # noqa: E731
-    return MonteCarloResult(float(reflected.mean()), se(reflected), float(transmitted.mean()), se(transmitted), per_batch * batches)
+        r, t, w = _run_batch(per_batch, rng, absorption, scattering, extinction, g, tops, bottoms, n_index, radii)
+        reflected[b], transmitted[b], within[b] = entry * r / per_batch, entry * t / per_batch, entry * w / per_batch
+    se = lambda x: np.std(x, ddof=1, axis=0) / np.sqrt(batches)  # noqa: E731
+    return MonteCarloResult(float(reflected.mean()), float(se(reflected)), float(transmitted.mean()), float(se(transmitted)),
+                            per_batch * batches, radii, within.mean(axis=0), se(within))
 
 
-def _run_batch(n, rng, absorption, scattering, extinction, g, tops, bottoms, n_index):
+def _run_batch(n, rng, absorption, scattering, extinction, g, tops, bottoms, n_index, radii):
     """Total escaping weight through the top and the bottom for n photons (each entering with
-    weight 1 just below the top surface, heading straight down)."""
-    z = np.zeros(n)
+    weight 1 just below the top surface, heading straight down), and the weight escaping through
+    the top within each of ``radii`` of the entry point."""
+    x, y, z = np.zeros(n), np.zeros(n), np.zeros(n)
+    within = np.zeros(radii.size)
     ux, uy, uz = np.zeros(n), np.zeros(n), np.ones(n)
     weight = np.ones(n)
     layer = np.zeros(n, dtype=int)
@@ -128,6 +146,9 @@ def _run_batch(n, rng, absorption, scattering, extinction, g, tops, bottoms, n_i
         hits = step >= to_boundary
         # photons that stay inside: move, deposit, scatter
         inside = ~hits
+        if radii.size:
+            x[inside] += step[inside] * ux[inside]
+            y[inside] += step[inside] * uy[inside]
         z[inside] += step[inside] * uz[inside]
         optical[inside] = 0.0
         keep = scattering[layer[inside]] / sigma_t[inside]
@@ -138,6 +159,9 @@ def _run_batch(n, rng, absorption, scattering, extinction, g, tops, bottoms, n_i
             h = np.flatnonzero(hits)
             d = to_boundary[h]
             optical[h] -= d * sigma_t[h]
+            if radii.size:
+                x[h] += d * ux[h]
+                y[h] += d * uy[h]
             down = uz[h] > 0
             z[h] = np.where(down, bottoms[layer[h]], tops[layer[h]])
             next_layer = layer[h] + np.where(down, 1, -1)
@@ -157,6 +181,9 @@ def _run_batch(n, rng, absorption, scattering, extinction, g, tops, bottoms, n_i
             out_top = cross[layer[cross] < 0]
             out_bottom = cross[layer[cross] >= n_layers]
             reflected += weight[out_top].sum()
+            if radii.size and out_top.size:
+                exit_radius = np.hypot(x[out_top], y[out_top])
+                within += np.cumsum(np.bincount(np.searchsorted(radii, exit_radius), weights=weight[out_top], minlength=radii.size + 1))[:-1]
             transmitted += weight[out_bottom].sum()
             weight[out_top] = 0.0
             weight[out_bottom] = 0.0
@@ -170,6 +197,6 @@ def _run_batch(n, rng, absorption, scattering, extinction, g, tops, bottoms, n_i
             weight[idx] = np.where(survive, weight[idx] / ROULETTE_SURVIVAL, 0.0)
         alive = weight > 0
         if not alive.all():
-            z, ux, uy, uz, weight, layer, optical = (a[alive] for a in (z, ux, uy, uz, weight, layer, optical))
+            x, y, z, ux, uy, uz, weight, layer, optical = (a[alive] for a in (x, y, z, ux, uy, uz, weight, layer, optical))
             n = len(z)
-    return reflected, transmitted
+    return reflected, transmitted, within

@@ -19,32 +19,37 @@ colour weights as ``colorimetry``.
 - **Christensen-Burley** (2015): R(r) = A s (exp(-s r) + exp(-s r / 3)) / (8 pi r) with A = R_d
   and the shape s fitted to the cumulative energy; reported as d = 1 / s in mm, with the same
   errors.
-- **Medium**: per channel, the semi-infinite homogeneous medium (same index, same DJ2005 model)
-  whose diffuse reflectance equals the channel's R_d and whose profile has the same median energy
-  radius; its absorption and reduced scattering in mm^-1 and mean free path 1 / sigma_t' in mm.
-  That is what pbrt-v4's ``subsurface`` material (sigma_a, sigma_s with g = 0) and Blender's
-  Principled BSDF (base colour, subsurface radius = mean free path) take; each renderer then
-  applies its own transport model, so its profile differs from ours (the Burley error says by
-  how much for that shape).
+- **Medium** (pbrt-v4, Mitsuba 3, Blender): per RGB channel (and per wavelength for spectral
+  renderers), the semi-infinite homogeneous medium behind a smooth dielectric boundary whose
+  *exact* transport has the channel's diffuse reflectance R_d and the median energy radius of
+  its profile (``skinfit.renderer_media``: adding-doubling for the colour, Monte Carlo for the
+  scale), under stated ``RendererConventions`` (index, phase function g, units). A medium matched
+  through diffusion theory instead renders up to 35 % too dark in a path tracer. Blender's
+  Principled BSDF inverts a base colour itself, with a drift measured per Blender version
+  (``blender_principled``), which the export compensates.
 """
 
 from __future__ import annotations
 
 import dataclasses
+import functools
+import importlib.resources
 import json
 from pathlib import Path
 
 import numpy as np
+import scipy.interpolate
 import scipy.optimize
 
 from . import __version__
 from ._validate import SkinfitInputError
 from .colorimetry import DEFAULT_ILLUMINANT, linear_srgb_weights
-from .layers import SKIN_IOR
-from .multipole import dipole_energy
+from .mitsuba import (mitsuba_heterogeneous_xml, mitsuba_material, mitsuba_medium, mitsuba_spectral_medium, mitsuba_xml,
+                      write_mitsuba_volume)
 from .params import SkinParams
 from .profiles import profile
-from .reflectance import diffuse_reflectance, model_with_options, normal_fresnel_reflectance
+from .reflectance import diffuse_reflectance, model_with_options
+from .renderer_media import DEFAULT_CONVENTIONS, RendererConventions, RendererMedium, medium_table, transport_medium
 
 ENERGY_FRACTION = 0.997
 GAUSSIAN_TERMS = 6
@@ -67,8 +72,9 @@ class RendererProfiles:
         captured: (3,) energy fraction of each RGB channel within ``max_radius_mm`` (unscaled).
         gaussians: per channel {"variances_mm2", "weights", "energy_error"}.
         burley: per channel {"albedo", "shape_mm" (d = 1/s), "energy_error"}.
-        medium: per channel lists {"absorption_per_mm", "reduced_scattering_per_mm",
-            "mean_free_path_mm", "reduced_albedo", "median_radius_mm"}.
+        medium: the per-channel ``RendererMedium`` (exact transport under ``conventions``).
+        spectral_medium: the same per wavelength.
+        median_radius_mm: (n_wavelengths,) the median energy radius of each wavelength's profile.
         metadata: parameters, options, units, conventions.
     """
 
@@ -82,7 +88,9 @@ class RendererProfiles:
     captured: np.ndarray
     gaussians: dict
     burley: dict
-    medium: dict
+    medium: RendererMedium
+    spectral_medium: RendererMedium
+    median_radius_mm: np.ndarray
     metadata: dict
 
 
@@ -103,10 +111,12 @@ def renderer_profiles(
     energy_fraction: float = ENERGY_FRACTION,
     n_radii: int = 256,
     label: str = "",
+    conventions: RendererConventions = DEFAULT_CONVENTIONS,
     **model_options,
 ) -> RendererProfiles:
-    """Energy-bounded spectral and RGB tables, sum-of-Gaussians and Burley fits and the per-channel
-    medium of one (scalar) parameter set; ``model_options`` as in ``diffuse_reflectance``."""
+    """Energy-bounded spectral and RGB tables, sum-of-Gaussians and Burley fits and the
+    per-channel and per-wavelength media (under the renderer ``conventions``) of one (scalar)
+    parameter set; ``model_options`` as in ``diffuse_reflectance``."""
     if params.shape != ():
         raise SkinfitInputError("renderer_profiles takes one parameter set (scalar SkinParams fields)")
     if not 0.5 < energy_fraction < 1.0:
@@ -133,8 +143,11 @@ def renderer_profiles(
     burley = {c: fit_burley(_DENSE_RADII[inside], dense_rgb[i, inside], albedo[i]) for i, c in enumerate(CHANNELS)}
     resolved = model_with_options(model_options.get("model"), ior=model_options.get("ior"))
     ior = float(np.mean(np.asarray(resolved.ior)))
-    median = [float(np.interp(0.5, np.maximum.accumulate(e), _DENSE_RADII)) for e in energy]
-    medium = homogeneous_medium(albedo, np.array(median), ior)
+    median = np.array([float(np.interp(0.5, np.maximum.accumulate(e), _DENSE_RADII)) for e in energy])
+    medium = transport_medium(albedo, median, conventions)
+    spectral_energy = cumulative_energy(_DENSE_RADII, dense) / reflectance[:, None]
+    spectral_median = np.array([float(np.interp(0.5, np.maximum.accumulate(e), _DENSE_RADII)) for e in spectral_energy])
+    spectral_medium = transport_medium(reflectance, spectral_median, conventions)
 
     metadata = {
         "generator": f"skinfit {__version__}",
@@ -152,9 +165,10 @@ def renderer_profiles(
         "spectral_scale": spectral_scale.tolist(),
         "rgb_scale": rgb_scale.tolist(),
         "captured_within_max_radius": captured.tolist(),
+        "renderer_conventions": conventions.describe(),
     }
     return RendererProfiles(lam, radii, spectral * spectral_scale[:, None], rgb * rgb_scale[:, None], reflectance, albedo,
-                            max_radius, captured, gaussians, burley, medium, metadata)
+                            max_radius, captured, gaussians, burley, medium, spectral_medium, spectral_median, metadata)
 
 
 def _energy_measure(radii):
@@ -244,79 +258,118 @@ def fit_burley(radii_mm, target, albedo) -> dict:
             **_errors(radii_mm, target, burley_profile(radii_mm, albedo, d), cumulative(d), albedo)}
 
 
-def _unit_medium_energy(reduced_albedo, ior, radius_mm):
-    """Energy within ``radius_mm`` of the semi-infinite medium with sigma_t' = 1 mm^-1, entry Fresnel
-    included (the DJ2005 multipole of a semi-infinite layer is its dipole: closed form)."""
-    a = np.asarray(reduced_albedo, dtype=float)
-    energy = dipole_energy(1.0 - a, a, ior, radius_mm)
-    return (1.0 - float(normal_fresnel_reflectance(ior))) * np.asarray(energy)
+def _header(result: RendererProfiles, comment: str = "# ") -> str:
+    """The provenance and conventions every medium export states."""
+    p = result.metadata["parameters"]
+    medium = result.medium
+    rgb = " ".join(f"{x:.6g}" for x in result.rgb_albedo)
+    lines = [
+        f"skinfit {__version__}, model {result.metadata['model']}: C_m {p['melanin']:g}, beta_m {p['melanin_blend']:g}, C_h {p['haemoglobin']:g}",
+        f"per-channel semi-infinite homogeneous medium whose exact transport gives the linear-sRGB diffuse albedo ({rgb})",
+        "and each channel's median energy radius (" + " ".join(f"{x:.4g}" for x in medium.median_radius_mm) + " mm)",
+        *(f"{k}: {v}" for k, v in medium.conventions.describe().items()),
+    ]
+    return "".join(f"{comment}{line}\n" for line in lines)
 
 
-def homogeneous_medium(albedo: np.ndarray, median_radius_mm: np.ndarray, ior: float = SKIN_IOR) -> dict:
-    """Per channel, the semi-infinite medium with diffuse reflectance ``albedo`` and median energy
-    radius ``median_radius_mm`` (both in this model): coefficients in mm^-1."""
-    grid = np.concatenate([[0.0], 1.0 - np.geomspace(1e-9, 1.0, 4000)[::-1][:-1]])  # 0 .. 1 - 1e-9, dense near 1
-    reflect = _unit_medium_energy(grid, ior, np.inf)
-    order = np.argsort(reflect)
-    if np.any(albedo >= reflect.max()) or np.any(albedo <= 0):
-        raise SkinfitInputError("a channel albedo is outside what a homogeneous medium of this index can reflect")
-    reduced = np.interp(albedo, reflect[order], grid[order])
-    radii = np.geomspace(1e-6, 1e6, 20000)
-    out = {"absorption_per_mm": [], "reduced_scattering_per_mm": [], "mean_free_path_mm": [], "reduced_albedo": [], "median_radius_mm": []}
-    for a, r50 in zip(reduced, median_radius_mm):
-        energy = _unit_medium_energy(a, ior, radii)
-        unit_r50 = float(np.interp(0.5 * _unit_medium_energy(a, ior, np.inf), energy, radii))
-        extinction = unit_r50 / r50  # profiles scale as sigma_t'^2 R(sigma_t' r)
-        out["absorption_per_mm"].append(float((1 - a) * extinction))
-        out["reduced_scattering_per_mm"].append(float(a * extinction))
-        out["mean_free_path_mm"].append(float(1.0 / extinction))
-        out["reduced_albedo"].append(float(a))
-        out["median_radius_mm"].append(float(r50))
-    return out
-
-
-def pbrt_v4_material(result: RendererProfiles, name: str = "skin", scene_units_per_mm: float = 1e-3) -> str:
-    """A pbrt-v4 ``subsurface`` material: sigma_a and sigma_s (g = 0, so sigma_s = sigma_s') per
-    RGB channel. pbrt's coefficients are per scene unit: ``scale`` converts from mm^-1 (1000 for
-    scenes in metres)."""
+def pbrt_v4_material(result: RendererProfiles, name: str = "skin", mm_per_scene_unit: float = 1000.0) -> str:
+    """A pbrt-v4 ``subsurface`` material: sigma_a and sigma_s (of the phase function with the
+    conventions' g) per RGB channel in mm^-1, ``scale`` = mm per scene unit (1000: a scene in
+    metres), ``eta`` the conventions' index. pbrt-v4 renders it with its photon-beam-diffusion
+    BSSRDF, which approximates the exact transport the medium was matched with."""
     m = result.medium
     fmt = lambda v: " ".join(f"{x:.6g}" for x in v)  # noqa: E731
-    p = result.metadata["parameters"]
     return (
-        f"# skinfit {__version__}: DJ2006 skin C_m {p['melanin']:g}, beta_m {p['melanin_blend']:g}, C_h {p['haemoglobin']:g}\n"
-        f"# per-channel semi-infinite medium matching the linear-sRGB albedo ({fmt(result.rgb_albedo)}) and the median\n"
-        f"# energy radius of each channel's profile; coefficients in mm^-1, scale = mm per scene unit\n"
-        f'MakeNamedMaterial "{name}"\n'
+        _header(result)
+        + f'MakeNamedMaterial "{name}"\n'
         f'    "string type" "subsurface"\n'
-        f'    "rgb sigma_a" [ {fmt(m["absorption_per_mm"])} ]\n'
-        f'    "rgb sigma_s" [ {fmt(m["reduced_scattering_per_mm"])} ]\n'
-        f'    "float g" 0\n'
-        f'    "float eta" {float(result.metadata.get("ior", SKIN_IOR)):g}\n'
-        f'    "float scale" {1.0 / scene_units_per_mm:g}\n'
+        f'    "rgb sigma_a" [ {fmt(m.absorption_per_mm)} ]\n'
+        f'    "rgb sigma_s" [ {fmt(m.scattering_per_mm)} ]\n'
+        f'    "float g" {m.conventions.anisotropy:g}\n'
+        f'    "float eta" {m.conventions.ior:g}\n'
+        f'    "float scale" {mm_per_scene_unit:g}\n'
     )
 
 
-def blender_principled(result: RendererProfiles) -> dict:
-    """Blender Principled BSDF inputs: base colour (linear), subsurface radius (mean free path per
-    channel, mm) and the scale that turns mm into metres."""
+def mitsuba_export(result: RendererProfiles, *, spectral: bool = False, mm_per_scene_unit: float = 1.0) -> str:
+    """A Mitsuba 3 XML fragment: the dielectric boundary and the homogeneous interior medium, per
+    RGB channel or (``spectral``) per wavelength of ``result`` (``skinfit.mitsuba``)."""
+    m = result.medium
+    if spectral:
+        medium = mitsuba_spectral_medium(result.wavelengths_nm, result.spectral_medium, mm_per_scene_unit=mm_per_scene_unit)
+    else:
+        medium = mitsuba_medium(m, mm_per_scene_unit=mm_per_scene_unit)
+    use = ('use: <shape type="..."> <ref id="skin_boundary"/> <ref name="interior" id="skin"/> </shape> '
+           f"with the volpathmis integrator (spectral MIS: the channels' sigma_t differ); coefficients per scene unit ({mm_per_scene_unit:g} mm)")
+    return mitsuba_xml(mitsuba_material(medium, m.conventions.ior), comment=_header(result, comment="") + use)
+
+
+#: Blender Cycles subsurface methods with a measured drift (``spectra/blender_cycles_<method>.json``).
+BLENDER_METHODS = ("RANDOM_WALK", "RANDOM_WALK_SKIN")
+
+
+@functools.cache
+def blender_drift(method: str = "RANDOM_WALK") -> dict:
+    """The measured Cycles curve of ``method``: rendered diffuse albedo against base colour, with
+    the Blender version and scene it was measured in (``benchmarks/measure_blender_drift.py``)."""
+    if method not in BLENDER_METHODS:
+        raise SkinfitInputError(f"no measured Blender drift for {method!r}; use one of {', '.join(BLENDER_METHODS)}")
+    text = importlib.resources.files("skinfit.spectra").joinpath(f"blender_cycles_{method.lower()}.json").read_text(encoding="utf-8")
+    return json.loads(text)
+
+
+def blender_base_colour(albedo, method: str = "RANDOM_WALK") -> np.ndarray:
+    """The Principled BSDF base colour that Cycles (the measured version) renders as ``albedo``
+    (diffuse, specular excluded): the measured curve inverted, monotone in log-log."""
+    drift = blender_drift(method)
+    base, rendered = np.log(drift["base_colour"]), np.log(drift["rendered_albedo"])
+    a = np.asarray(albedo, dtype=float)
+    if np.any(~np.isfinite(a)) or np.any(a < np.exp(rendered[0])) or np.any(a > np.exp(rendered[-1])):
+        raise SkinfitInputError(f"albedo outside the measured Blender range {np.exp(rendered[0]):.3g} to {np.exp(rendered[-1]):.3g}")
+    return np.exp(scipy.interpolate.PchipInterpolator(rendered, base)(np.log(a)))
+
+
+def blender_radius(median_radius_mm, base_colour, method: str = "RANDOM_WALK") -> np.ndarray:
+    """The Subsurface Radius (mm) with which Cycles renders base colour ``base_colour`` with the
+    median energy radius ``median_radius_mm``: the radius over the measured k(base colour), the
+    median Cycles renders per unit of radius (``benchmarks/measure_blender_drift.py``)."""
+    radial = blender_drift(method)["radial"]
+    k = scipy.interpolate.PchipInterpolator(np.log(radial["base_colour"]), np.log(radial["median_over_radius"]), extrapolate=True)
+    return np.asarray(median_radius_mm, dtype=float) / np.exp(k(np.log(np.asarray(base_colour, dtype=float))))
+
+
+def blender_principled(result: RendererProfiles, method: str = "RANDOM_WALK") -> dict:
+    """Blender Principled BSDF inputs: the base colour that the measured Cycles version renders as
+    the model's albedo, the Subsurface Radius with which it renders each channel's median energy
+    radius (mm), and the scale that turns mm into metres. Cycles treats a radius below 1e-4
+    scene units (0.1 mm here) as a diffuse surface; the exported radii of skin lie above it."""
+    drift = blender_drift(method)
+    base = blender_base_colour(result.rgb_albedo, method)
     return {
-        "Base Color": [*map(float, result.rgb_albedo), 1.0],
+        "Base Color": [*map(float, base), 1.0],
         "Subsurface Weight": 1.0,
-        "Subsurface Radius": result.medium["mean_free_path_mm"],
+        "Subsurface Radius": blender_radius(result.medium.median_radius_mm, base, method).tolist(),
         "Subsurface Scale": 0.001,
-        "Subsurface IOR": float(result.metadata.get("ior", SKIN_IOR)),
-        "subsurface_method": "RANDOM_WALK",
-        "note": "Subsurface Radius in mm (mean free path 1/sigma_t' per channel); Subsurface Scale 0.001 for scenes in metres",
+        "Subsurface IOR": result.medium.conventions.ior,
+        "IOR": result.medium.conventions.ior,
+        "Subsurface Anisotropy": result.medium.conventions.anisotropy,
+        "Roughness": 0.0,
+        "subsurface_method": method,
+        "target_albedo": result.rgb_albedo.tolist(),
+        "target_median_radius_mm": result.medium.median_radius_mm.tolist(),
+        "note": (f"base colour and radius compensated for Blender {drift['blender']} Cycles {method} as measured in {drift['scene']}; "
+                 "Subsurface Radius in mm (Cycles renders a median energy radius of k(base colour) x radius), "
+                 "Subsurface Scale 0.001 for scenes in metres"),
     }
 
 
-RENDERER_FORMATS = ("table", "gaussians", "burley", "pbrt", "blender", "json")
+RENDERER_FORMATS = ("table", "gaussians", "burley", "pbrt", "mitsuba", "mitsuba-spectral", "blender", "json")
 
 
 def write_renderer(result: RendererProfiles, fmt: str, path: str | Path) -> Path:
     """Write one format: ``table`` (CSV of the energy-bounded spectral and RGB tables), ``gaussians``,
     ``burley``, ``blender`` or ``json`` (everything but the tables) as JSON, ``pbrt`` as a pbrt-v4
-    snippet."""
+    snippet, ``mitsuba`` / ``mitsuba-spectral`` as a Mitsuba 3 XML fragment."""
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     meta = result.metadata
@@ -326,6 +379,8 @@ def write_renderer(result: RendererProfiles, fmt: str, path: str | Path) -> Path
         _write_csv(ProfileTable(result.wavelengths_nm, result.radii_mm, result.spectral, result.rgb, result.reflectance, meta), path)
     elif fmt == "pbrt":
         path.write_text(pbrt_v4_material(result), encoding="utf-8")
+    elif fmt in ("mitsuba", "mitsuba-spectral"):
+        path.write_text(mitsuba_export(result, spectral=fmt == "mitsuba-spectral"), encoding="utf-8")
     elif fmt in ("gaussians", "burley", "blender", "json"):
         content = {
             "gaussians": {"form": "R(r) = sum_k w_k exp(-r^2 / (2 v_k)) / (2 pi v_k) (d'Eon & Luebke 2007), r in mm, v in mm^2",
@@ -335,7 +390,9 @@ def write_renderer(result: RendererProfiles, fmt: str, path: str | Path) -> Path
             "blender": blender_principled(result),
         }
         if fmt == "json":
-            content = {**content, "medium": result.medium, "rgb_albedo": result.rgb_albedo.tolist(), "max_radius_mm": result.max_radius_mm}
+            content = {**content, "medium": result.medium.to_dict(), "spectral_medium": result.spectral_medium.to_dict(),
+                       "wavelengths_nm": result.wavelengths_nm.tolist(), "rgb_albedo": result.rgb_albedo.tolist(),
+                       "max_radius_mm": result.max_radius_mm}
         else:
             content = content[fmt]
         path.write_text(json.dumps({"metadata": meta, **content}, indent=1), encoding="utf-8")
@@ -360,19 +417,25 @@ def median_radius(params: SkinParams, wavelengths_nm=np.arange(400.0, 701.0, 10.
 
 
 def renderer_textures(maps: dict, *, illuminant: str = DEFAULT_ILLUMINANT, grid: int = 24, ior: float | None = None,
-                      model=None) -> dict:
-    """Albedo and subsurface-radius textures from fitted maps (``melanin``, ``haemoglobin``,
-    ``melanin_blend`` as (h, w) arrays, e.g. ``skinfit.fit_image(...).maps``).
+                      model=None, conventions: RendererConventions = DEFAULT_CONVENTIONS,
+                      blender_method: str = "RANDOM_WALK") -> dict:
+    """Per-texel media from fitted maps (``melanin``, ``haemoglobin``, ``melanin_blend`` as (h, w)
+    arrays, e.g. ``skinfit.fit_image(...).maps``).
 
-    Returns float32 (h, w) channels ``albedo.R/G/B`` (linear sRGB, the shading removed) and
-    ``mfp.R/G/B`` (the per-channel mean free path 1/sigma_t' of ``homogeneous_medium``, mm). The
-    radius is interpolated (bilinear in log C_m, log C_h) from a ``grid`` x ``grid`` table over
-    the maps' range; the albedo is exact per pixel.
+    Returns float32 (h, w) channels, each per RGB channel ``.R/.G/.B``: ``albedo`` (the model's
+    linear-sRGB diffuse albedo, the shading removed), ``sigma_t`` and ``ss_albedo`` (the exact
+    transport medium of ``renderer_media`` under ``conventions``: extinction in mm^-1 and
+    single-scattering albedo, what Mitsuba's heterogeneous medium takes), ``mfp`` (its mean free
+    path 1/sigma_t, mm), ``base_colour`` and ``blender_radius`` (the Principled BSDF base colour and
+    Subsurface Radius in mm with which the measured Blender Cycles renders that albedo and median
+    radius, ``blender_principled``). The albedo is exact per pixel; the median energy radius is
+    interpolated (bilinear in log C_m, log C_h, of its log) from a ``grid`` x ``grid`` table over
+    the maps' range. Albedos beyond what the medium or Blender's measured curve reach (maps
+    zeroed outside skin) are clipped into their range.
     """
     from .image_fit import render_maps
 
     model = model_with_options(model, ior=ior)
-    ior = float(np.mean(np.asarray(model.ior)))
     melanin, haemoglobin = (np.asarray(maps[k], dtype=float) for k in ("melanin", "haemoglobin"))
     blend = float(np.median(np.asarray(maps.get("melanin_blend", 0.7), dtype=float)))
     if melanin.shape != haemoglobin.shape or melanin.ndim != 2:
@@ -382,19 +445,41 @@ def renderer_textures(maps: dict, *, illuminant: str = DEFAULT_ILLUMINANT, grid:
     axis_m = np.geomspace(c_m.min(), max(c_m.max(), c_m.min() * 1.001), grid)
     axis_h = np.geomspace(c_h.min(), max(c_h.max(), c_h.min() * 1.001), grid)
     mm, hh = np.meshgrid(axis_m, axis_h, indexing="ij")
-    table_albedo, table_median = median_radius(SkinParams(mm, blend, hh), illuminant=illuminant, model=model)
-    table_mfp = np.empty_like(table_median)
-    for idx in np.ndindex(grid, grid):
-        table_mfp[idx] = homogeneous_medium(table_albedo[idx], table_median[idx], ior)["mean_free_path_mm"]
+    _, table_median = median_radius(SkinParams(mm, blend, hh), illuminant=illuminant, model=model)
     x = np.interp(np.log(c_m), np.log(axis_m), np.arange(grid))
     y = np.interp(np.log(c_h), np.log(axis_h), np.arange(grid))
-    mfp = _bilinear(table_mfp, x, y)
+    median = np.exp(_bilinear(np.log(table_median), x, y))
     albedo = render_maps(melanin, haemoglobin, np.ones_like(melanin), melanin_blend=blend, illuminant=illuminant, model=model)
-    channels = {}
-    for i, c in enumerate("RGB"):
-        channels[f"albedo.{c}"] = albedo[..., i].astype(np.float32)
-        channels[f"mfp.{c}"] = mfp[..., i].astype(np.float32)
-    return channels
+    table = medium_table(conventions)
+    low, high = table.reflectance_range
+    medium = transport_medium(np.clip(albedo, low, high), median, conventions)
+    drift = blender_drift(blender_method)
+    base = blender_base_colour(np.clip(albedo, drift["rendered_albedo"][0], drift["rendered_albedo"][-1]), blender_method)
+    layers = {"albedo": albedo, "sigma_t": medium.extinction_per_mm, "ss_albedo": medium.single_scattering_albedo,
+              "mfp": medium.mean_free_path_mm, "base_colour": base, "blender_radius": blender_radius(median, base, blender_method)}
+    return {f"{name}.{c}": values[..., i].astype(np.float32) for name, values in layers.items() for i, c in enumerate("RGB")}
+
+
+def write_mitsuba_textures(textures: dict, folder, *, conventions: RendererConventions = DEFAULT_CONVENTIONS,
+                           mm_per_scene_unit: float = 1.0) -> Path:
+    """Write the media of ``renderer_textures`` for Mitsuba 3: ``sigma_t.vol`` (extinction over
+    its peak), ``albedo.vol`` (single-scattering albedo), one texel per map pixel and one layer
+    deep, and ``skin_medium.xml`` (the heterogeneous medium with its boundary). Row 0 of the maps
+    is y = 0 of the grids' unit cube. Returns the XML's path."""
+    folder = Path(folder)
+    stack = lambda name: np.stack([textures[f"{name}.{c}"] for c in "RGB"], axis=-1)  # noqa: E731
+    sigma_t = stack("sigma_t").astype(float) * mm_per_scene_unit
+    peak = float(sigma_t.max())
+    write_mitsuba_volume(folder / "sigma_t.vol", sigma_t / peak)
+    write_mitsuba_volume(folder / "albedo.vol", stack("ss_albedo"))
+    comment = "\n".join([f"skinfit {__version__}: per-texel media of fitted maps, matched with exact transport",
+                          *(f"{k}: {v}" for k, v in conventions.describe().items()),
+                          f"coefficients per scene unit ({mm_per_scene_unit:g} mm); the grids span their unit cube: add a to_world "
+                          "to each volume to lay them over the skin (z: depth)"])
+    xml = mitsuba_heterogeneous_xml("sigma_t.vol", "albedo.vol", peak, ior=conventions.ior, anisotropy=conventions.anisotropy, comment=comment)
+    path = folder / "skin_medium.xml"
+    path.write_text(xml, encoding="utf-8")
+    return path
 
 
 def _bilinear(table, x, y):

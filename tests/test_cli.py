@@ -155,8 +155,13 @@ def test_profiles_for_renderers_and_textures(tmp_path, capsys):
                      "melanin_blend": np.full((4, 5), 0.7, np.float32)})
     assert main(["textures", str(maps), "--out", str(tmp_path / "tex.exr")]) == 0
     channels, _ = read_exr_channels(tmp_path / "tex.exr")
-    assert set(channels) == {f"{k}.{c}" for k in ("albedo", "mfp") for c in "RGB"}
-    assert np.all(channels["mfp.R"] > channels["mfp.B"])  # red light travels further
+    assert set(channels) == {f"{k}.{c}" for k in ("albedo", "sigma_t", "ss_albedo", "mfp", "base_colour", "blender_radius") for c in "RGB"}
+    assert np.all(channels["ss_albedo.R"] > channels["ss_albedo.B"])  # red is absorbed least
+    assert main(["textures", str(maps), "--out", str(tmp_path / "tex2.exr"), "--mitsuba", str(tmp_path / "mitsuba")]) == 0
+    assert {p.name for p in (tmp_path / "mitsuba").iterdir()} == {"sigma_t.vol", "albedo.vol", "skin_medium.xml"}
+    spectral = tmp_path / "spectral.xml"
+    assert main(["profiles", "--preset", "medium", "--format", "mitsuba-spectral", "--out", str(spectral)]) == 0
+    assert "360:" in spectral.read_text() and "830:" in spectral.read_text()
     assert main(["textures", str(out), "--out", str(tmp_path / "x.exr")]) != 0
 
 

@@ -3,6 +3,7 @@ conservation, and published MCML-style skin values (MODEL.md 5.5)."""
 
 import numpy as np
 import pytest
+import scipy.integrate
 
 import skinfit
 from skinfit.monte_carlo import monte_carlo_reflectance
@@ -48,3 +49,27 @@ def test_bad_stacks_are_clear_errors():
         monte_carlo_reflectance([semi, semi])
     with pytest.raises(skinfit.SkinfitInputError, match="photons"):
         monte_carlo_reflectance([semi], photons=1)
+
+
+def _single_scattering_within(albedo, radius):
+    """Energy within ``radius`` of once-scattered light in an index-matched isotropic medium with
+    sigma_t = 1: scattered at depth z (density e^-z), escaping along mu (density 1/2) with
+    e^(-z / mu), at radius z tan(theta); the depth integral in closed form leaves
+    a/2 int_0^1 mu / (1 + mu) (1 - exp(-r sqrt((1 + mu) / (1 - mu)))) dmu."""
+    def integrand(mu):
+        return mu / (1 + mu) * -np.expm1(-radius * np.sqrt((1 + mu) / (1 - mu))) if mu < 1 else 0.5
+
+    return 0.5 * albedo * scipy.integrate.quad(integrand, 0.0, 1.0, limit=200)[0]
+
+
+def test_the_radial_tally_follows_single_scattering_in_a_dark_medium():
+    # at albedo 0.002 light is scattered once (multiple scattering adds ~0.4 % of it)
+    layer = skinfit.Layer(absorption=0.998, reduced_scattering=0.002, thickness=float("inf"), ior=1.0)
+    radii = np.array([0.1, 0.5, 2.0])
+    mc = monte_carlo_reflectance([layer], photons=400_000, seed=4, radii_mm=radii)
+    single = np.array([_single_scattering_within(0.002, r) for r in radii])
+    assert np.all(np.diff(mc.reflectance_within) > 0) and mc.reflectance_within[-1] <= mc.reflectance
+    assert np.all(np.abs(mc.reflectance_within - single) < 4 * mc.reflectance_within_error + 0.006 * single)
+    # a radius beyond every exit gives the whole reflectance
+    far = monte_carlo_reflectance([layer], photons=10_000, seed=4, radii_mm=[1e6])
+    assert far.reflectance_within[0] == pytest.approx(far.reflectance, rel=1e-12)
