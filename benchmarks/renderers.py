@@ -202,7 +202,8 @@ def markdown(record) -> str:
         if randoms:
             worst, de = _summary(randoms)
             cycles_random = {k: v for k, v in cycles.items() if k.startswith("random")}
-            cycles_cell = f"worst {max(max(abs(r - 1) for r in v['ratio']) for v in cycles_random.values()):.3f} off" if cycles_random else "—"
+            cycles_worst = max(max(abs(r - 1) for r in v["ratio"]) for v in cycles_random.values()) if cycles_random else None
+            cycles_cell = f"worst channel {100 * cycles_worst:.1f} % off" if cycles_random else "—"
             lines.append(f"| {model_name} | {len(randoms)} random sets | worst channel {100 * worst:.1f} % off | max {de:.2f} | — | {cycles_cell} |")
     spectral = record["models"][record["default_model"]]["spectral"]
     lines += ["", "Spectral export (medium preset, `scalar_spectral`, 2 nm bands): rendered / model reflectance "
@@ -229,7 +230,12 @@ def main(argv=None):
     parser.add_argument("--random", type=int, default=20)
     parser.add_argument("--quick", action="store_true", help="fewer samples (a smoke run)")
     parser.add_argument("--out", default=str(ROOT / "benchmarks" / "results"))
+    parser.add_argument("--markdown-only", action="store_true", help="rewrite renderers.md from the saved renderers.json")
     args = parser.parse_args(argv)
+    out = Path(args.out)
+    if args.markdown_only:
+        (out / "renderers.md").write_text(markdown(json.loads((out / "renderers.json").read_text())) + "\n")
+        return
     import mitsuba
 
     scale = 8 if args.quick else 1
@@ -246,7 +252,6 @@ def main(argv=None):
         record["models"][model.name] = block
     if args.blender_python:
         record["blender"] = blender(sets, args.blender_python, 16384 // scale)
-    out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     (out / "renderers.json").write_text(json.dumps(record, indent=1))
     (out / "renderers.md").write_text(markdown(record) + "\n")

@@ -42,6 +42,7 @@ from .params import PRESET_NAMES, SkinParams, preset, preset_source  # noqa: E40
 from .planning import Plan, Request, plan  # noqa: E402
 from .profiles import captured_reflectance, layered_profile, profile  # noqa: E402
 from .reflectance import diffuse_reflectance, layered_reflectance, stack_transfer  # noqa: E402
+from .renderer_media import RendererConventions, RendererMedium, transport_medium  # noqa: E402
 from .renderers import RendererProfiles, renderer_profiles, renderer_textures, write_renderer  # noqa: E402
 from .surface import brdf, lobe_albedo, reflectance_factor, surface_energy  # noqa: E402
 from .tables import ProfileTable, profile_table, read_exr_table, write_table  # noqa: E402
@@ -102,6 +103,9 @@ __all__ = [
     "RendererProfiles",
     "renderer_profiles",
     "renderer_textures",
+    "RendererConventions",
+    "RendererMedium",
+    "transport_medium",
     "reflectance_factor",
     "skin_layers",
     "slab_response",

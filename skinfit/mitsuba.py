@@ -73,16 +73,29 @@ def mitsuba_medium(medium: RendererMedium, *, mm_per_scene_unit: float = 1.0) ->
     }
 
 
+#: The wavelength range Mitsuba's spectral variants sample, nm.
+MITSUBA_SPECTRAL_RANGE_NM = (360.0, 830.0)
+
+
 def mitsuba_spectral_medium(wavelengths_nm, medium: RendererMedium, *, mm_per_scene_unit: float = 1.0) -> dict:
     """A ``homogeneous`` medium with ``spectrum`` values per wavelength (spectral variants);
-    ``medium`` holds one entry per wavelength (``renderer_profiles(...).spectral_medium``)."""
+    ``medium`` holds one entry per wavelength (``renderer_profiles(...).spectral_medium``).
+    Mitsuba samples 360-830 nm and reads an irregular spectrum as zero outside its wavelengths (a
+    transparent medium there), so values are held constant from the export's ends to that range:
+    export 360-830 nm (``skinfit profiles --format mitsuba-spectral`` does) for colours there."""
     lam = np.asarray(wavelengths_nm, dtype=float)
     if np.shape(medium.albedo) != lam.shape or lam.ndim != 1 or lam.size < 2 or np.any(np.diff(lam) <= 0):
         raise SkinfitInputError("a spectral Mitsuba medium needs one medium per wavelength, wavelengths increasing")
+    albedo = np.asarray(medium.single_scattering_albedo, dtype=float)
     sigma_t = np.asarray(medium.extinction_per_mm, dtype=float) * mm_per_scene_unit
+    low, high = MITSUBA_SPECTRAL_RANGE_NM
+    if lam[0] > low:
+        lam, albedo, sigma_t = np.r_[low, lam], np.r_[albedo[0], albedo], np.r_[sigma_t[0], sigma_t]
+    if lam[-1] < high:
+        lam, albedo, sigma_t = np.r_[lam, high], np.r_[albedo, albedo[-1]], np.r_[sigma_t, sigma_t[-1]]
     return {
         "type": "homogeneous",
-        "albedo": {"type": "spectrum", "value": [(float(w), float(v)) for w, v in zip(lam, medium.single_scattering_albedo)]},
+        "albedo": {"type": "spectrum", "value": [(float(w), float(v)) for w, v in zip(lam, albedo)]},
         "sigma_t": {"type": "spectrum", "value": [(float(w), float(v)) for w, v in zip(lam, sigma_t)]},
         "scale": 1.0,
         "phase": _phase(medium.conventions.anisotropy),

@@ -13,17 +13,20 @@ Here each channel's medium is matched with exact transport instead:
   single-scattering albedo a = sigma_s / sigma_t alone. R(a) is computed by the adding-doubling
   of ``skinfit.transport`` (32 streams) on 321 nodes uniform in logit(a) over a in
   [1e-3, 1 - 1e-6], and inverted by a cubic spline of logit(a) over logit(R / R_max),
-  R_max = 1 - F0 (within 1e-6 of the direct adding-doubling between the nodes, tested).
+  R_max = 1 - F0 (within 1e-9 of the direct adding-doubling between the nodes, tested). That
+  covers diffuse albedos from 6e-5 to 0.87 at n 1.4; skin lies inside.
 - **Scale.** The same medium's radial profile scales with sigma_t exactly, R(r) = sigma_t^2
   f_a(sigma_t r), so its median energy radius is c(a) / sigma_t. c(a), in mean free paths, is
   measured by the radially resolved Monte Carlo (``skinfit.monte_carlo_reflectance``) at 20
-  albedos, 1 - a in [5e-4, 0.99] (200,000 photons each: a standard error of 0.2-0.4 % in c),
-  interpolated monotonically in log c over log(1 - a). sigma_t = c(a) / r50 then gives the
-  medium the model's median energy radius r50.
+  albedos, 1 - a in [5e-4, 0.99] (1,000,000 photons each: a standard error of 0.1-0.9 % in c,
+  median 0.23 %, largest where absorption dominates), interpolated monotonically in log c over
+  log(1 - a); against fresh Monte Carlo runs between the nodes it is within 0.4 % (1.2 standard
+  errors; ``benchmarks/results/medium_table.json``). sigma_t = c(a) / r50 then gives the medium
+  the model's median energy radius r50.
 
 The tables depend on (n, g) only: ``medium_table`` returns the shipped one for the default
-conventions (n 1.4, g 0: ``skinfit.spectra``, built by ``python -m benchmarks.build_medium_table``)
-and builds and caches others (minutes, mostly the Monte Carlo).
+conventions (n 1.4, g 0: ``skinfit.spectra``, built by ``python -m benchmarks.build_medium_table``
+in 7 minutes on 2 cores) and builds and caches others (as long, mostly the Monte Carlo).
 
 The conventions assumed are stated with every export: radii and mean free paths in mm,
 coefficients in mm^-1 (a scene in metres multiplies them by 1000), index n of the medium and of

@@ -59,3 +59,9 @@ def test_readme_real_input_table_is_the_saved_benchmark_output():
     readme = (ROOT / "README.md").read_text()
     block = readme.split("<!-- fit-photos:start -->\n", 1)[1].split("\n<!-- fit-photos:end -->", 1)[0]
     assert block == (ROOT / "benchmarks" / "results" / "fit_photos.md").read_text().strip()
+
+
+def test_readme_renderer_table_is_the_saved_benchmark_output():
+    readme = (ROOT / "README.md").read_text()
+    block = readme.split("<!-- renderers:start -->\n", 1)[1].split("\n<!-- renderers:end -->", 1)[0]
+    assert block == (ROOT / "benchmarks" / "results" / "renderers.md").read_text().strip()

@@ -129,3 +129,18 @@ def test_textures_from_maps_match_the_per_pixel_medium(tmp_path):
     np.testing.assert_allclose([textures[f"base_colour.{c}"][1, 0] for c in "RGB"], rd.blender_base_colour(albedo), rtol=1e-5)
     xml = rd.write_mitsuba_textures(textures, tmp_path)
     assert (tmp_path / "sigma_t.vol").stat().st_size == 48 + 4 * 2 * 2 * 3 and 'type="heterogeneous"' in xml.read_text()
+
+
+def test_a_spectral_mitsuba_medium_covers_what_mitsuba_samples(presets):
+    # Mitsuba reads an irregular spectrum as zero outside its wavelengths: a transparent medium
+    from skinfit import mitsuba as sm
+
+    result = presets["light"]
+    medium = sm.mitsuba_spectral_medium(result.wavelengths_nm, result.spectral_medium)
+    wavelengths = [w for w, _ in medium["sigma_t"]["value"]]
+    assert wavelengths[0] == 360.0 and wavelengths[-1] == 830.0
+    assert medium["sigma_t"]["value"][0][1] == pytest.approx(medium["sigma_t"]["value"][1][1])
+    with pytest.raises(skinfit.SkinfitInputError, match="one medium per wavelength"):
+        sm.mitsuba_spectral_medium(result.wavelengths_nm[:-1], result.spectral_medium)
+    with pytest.raises(skinfit.SkinfitInputError, match="3 channels"):
+        sm.mitsuba_medium(result.spectral_medium)
