@@ -29,7 +29,6 @@ import argparse
 import json
 import os
 import platform
-import subprocess
 import time
 from pathlib import Path
 
@@ -38,6 +37,7 @@ import jax.numpy as jnp
 import numpy as np
 
 import skinfit  # noqa: F401 - float64
+from benchmarks._record import git_commit
 from benchmarks._timing import median_seconds
 from skinfit import transport_table as tt
 from skinfit.transport import stack_reflectance_transport
@@ -157,15 +157,6 @@ def cost(table, batch: int = 64, direct_batch: int = 8) -> dict:
     }
 
 
-def _git_commit() -> str:
-    try:
-        commit = subprocess.run(["git", "rev-parse", "HEAD"], cwd=ROOT, capture_output=True, text=True, check=True).stdout.strip()
-        dirty = subprocess.run(["git", "status", "--porcelain"], cwd=ROOT, capture_output=True, text=True, check=True).stdout.strip()
-        return commit + (" (working tree modified)" if dirty else "")
-    except (OSError, subprocess.CalledProcessError):
-        return "unknown"
-
-
 def main(argv=None):
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--nodes", type=int, nargs=3, default=list(tt.DEFAULT_NODES), help="nodes along x1, x2, x3")
@@ -178,7 +169,7 @@ def main(argv=None):
     result = {
         "date": time.strftime("%Y-%m-%d"),
         "machine": f"{platform.processor() or platform.machine()}, {os.cpu_count()} cores, {jax.devices()[0].device_kind}",
-        "git_commit": _git_commit(),
+        "git_commit": git_commit(),
         "anisotropy": G, "ior": N, "streams": STREAMS,
     }
     if args.no_build:
