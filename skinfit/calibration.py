@@ -42,6 +42,7 @@ import numpy as np
 
 from .colorimetry import DEFAULT_ILLUMINANT
 from .fit_variables import prior_coordinate
+from .pixel_fit import fit_pixels
 from .skin_model import resolve_model
 
 
@@ -78,7 +79,6 @@ def calibrate(
     ``score`` is the trimmed mean of the per-pixel score at the optimum."""
     from scipy.optimize import minimize
 
-    from .image_fit import fit_pixels
 
     pixels = np.asarray(pixels, dtype=float).reshape(-1, 3)
     if len(pixels) == 0:

@@ -11,13 +11,27 @@ import sys
 import time
 from pathlib import Path
 
+import jax
 import numpy as np
 
 from ._validate import SkinfitInputError
 from .adding import ADDING_MODES
+from .colorimetry import spectrum_to_srgb, srgb_encode
+from .distributed import fit_images_on_cluster
+from .fit_outputs import encoded_srgb, fit_image_to_folder, write_fit
+from .image_fit import fit_image
+from .map_rendering import render_maps
+from .images import read_exr_channels, read_linear_rgb, read_mask, write_exr, write_png
+from .measurements import FACE_SITES, read_issa, read_nist
+from .model_calibration import DEFAULT_CONSTANTS, calibrate_model
 from .params import PRESET_NAMES, SkinParams, preset
-from .reflectance import METHODS
+from .planning import Request, plan
+from .plots import plot_fits, plot_image_fit, plot_profiles, plot_spectra
+from .reflectance import METHODS, diffuse_reflectance
+from .renderers import renderer_profiles, renderer_textures, write_mitsuba_textures, write_renderer
 from .skin_model import SkinModel
+from .spectral_fit import FitStatus, fit_spectra
+from .tables import profile_table, write_table
 
 #: The bundled photo (package skinfit.data, folder data/ of the repository).
 DEMO_PHOTO = "eileen_collins_face.png"
@@ -109,8 +123,6 @@ MITSUBA_WAVELENGTHS = "360:830:10"
 
 
 def _cmd_spectrum(args) -> int:
-    from .reflectance import diffuse_reflectance
-
     wavelengths = parse_wavelengths(args.wavelengths)
     reflectance = np.asarray(diffuse_reflectance(_params(args), wavelengths, **_model_options(args)))
     lines = ["wavelength_nm,reflectance"] + [f"{w:g},{r:.8f}" for w, r in zip(wavelengths, reflectance)]
@@ -119,10 +131,7 @@ def _cmd_spectrum(args) -> int:
 
 
 def _cmd_profiles(args) -> int:
-    from .tables import profile_table, write_table
-
     if args.format != "table":
-        from .renderers import renderer_profiles, write_renderer
 
         wavelengths = args.wavelengths
         if args.format == "mitsuba-spectral" and wavelengths == PROFILE_WAVELENGTHS:
@@ -150,8 +159,6 @@ def _cmd_profiles(args) -> int:
 
 
 def _cmd_plan(args) -> int:
-    from .planning import Request, plan
-
     wavelengths = None if args.wavelengths in (None, "none") else tuple(parse_wavelengths(args.wavelengths).tolist())
     request = Request(
         wavelengths_nm=wavelengths,
@@ -169,9 +176,6 @@ def _cmd_plan(args) -> int:
 
 
 def _cmd_textures(args) -> int:
-    from .images import read_exr_channels, write_exr
-    from .renderers import renderer_textures
-
     channels, _ = read_exr_channels(args.maps)
     missing = [k for k in ("melanin", "haemoglobin") if k not in channels]
     if missing:
@@ -183,7 +187,6 @@ def _cmd_textures(args) -> int:
     write_exr(args.out, textures, {"skinfit:units": units, "skinfit:source": str(args.maps)})
     print(f"wrote {args.out}: albedo, sigma_t, ss_albedo, mfp, base_colour and blender_radius .R/G/B")
     if args.mitsuba:
-        from .renderers import write_mitsuba_textures
 
         print(f"wrote {write_mitsuba_textures(textures, args.mitsuba)} with sigma_t.vol and albedo.vol")
     return 0
@@ -193,9 +196,6 @@ def _cmd_demo(args) -> int:
     """The main job on the bundled photo: parameter maps, reconstruction, a blush edit, a figure."""
     from importlib.resources import as_file, files
 
-    from .image_fit import fit_image
-    from .images import read_linear_rgb, read_mask, write_png
-    from .plots import plot_image_fit
 
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
@@ -210,11 +210,11 @@ def _cmd_demo(args) -> int:
         mask = read_mask(mask_path) > 0
     fit = fit_image(linear, mask=mask, model=model, progress=not args.quiet)
     summary = fit.summary()
-    _write_fit(fit, out, "", DEMO_PHOTO, "D65")
+    write_fit(fit, out, "", DEMO_PHOTO, "D65")
     # the edit on the skin, the photo elsewhere
-    blush = _encoded_srgb(np.where(fit.skin_mask[..., None], fit.render(scale_haemoglobin=2.0), linear))
+    blush = encoded_srgb(np.where(fit.skin_mask[..., None], fit.render(scale_haemoglobin=2.0), linear))
     write_png(out / "blush.png", blush)
-    plot_image_fit(_encoded_srgb(linear), fit, blush, out / "maps.png", "blush: haemoglobin x 2")
+    plot_image_fit(encoded_srgb(linear), fit, blush, out / "maps.png", "blush: haemoglobin x 2")
     skin = fit.status[mask] == 0
     delta_e = fit.residual_dE2000[mask]
     print(
@@ -228,10 +228,6 @@ def _cmd_demo(args) -> int:
 
 
 def _cmd_presets(args) -> int:
-    from .colorimetry import spectrum_to_srgb
-    from .plots import plot_profiles, plot_spectra
-    from .tables import profile_table, write_table
-
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     wavelengths = np.arange(400.0, 701.0, 5.0)
@@ -270,7 +266,6 @@ def _read_spectra(args) -> tuple[list[str], np.ndarray, np.ndarray]:
     """Names, wavelengths (nm) and spectra (n, m) from the INPUT file."""
     path = Path(args.input)
     if args.format == "nist":
-        from .measurements import read_nist
 
         nist = read_nist(path)
         if args.nist_spectra == "average":
@@ -302,8 +297,6 @@ def _resample(wavelengths, spectra, grid):
 
 
 def _cmd_fit_spectra(args) -> int:
-    from .spectral_fit import FitStatus, fit_spectra
-
     names, wavelengths, spectra = _read_spectra(args)
     grid = parse_wavelengths(args.wavelengths)
     target = _resample(wavelengths, spectra, grid)
@@ -341,7 +334,6 @@ def _cmd_fit_spectra(args) -> int:
               f"CIEDE2000: median {np.median(fit.delta_e2000[ok]):.2f}, worst {fit.delta_e2000[ok].max():.2f}")
     print(f"wrote {out}")
     if args.plot:
-        from .plots import plot_fits
 
         plot_fits(grid, target, fit.fitted, names, fit.rms_residual, args.plot)
         print(f"wrote {args.plot}")
@@ -349,11 +341,8 @@ def _cmd_fit_spectra(args) -> int:
 
 
 def _cmd_calibrate_model(args) -> int:
-    from .model_calibration import DEFAULT_CONSTANTS, calibrate_model
-
     grid = parse_wavelengths(args.wavelengths)
     if args.format == "issa":
-        from .measurements import FACE_SITES, read_issa
 
         archive = read_issa(args.input)
         sites = FACE_SITES if args.sites == "face" else None if args.sites == "all" else tuple(args.sites.split(","))
@@ -403,7 +392,6 @@ def _cmd_fit_image(args) -> int:
     if args.no_prior:
         options["prior"] = False
     if args.dask:
-        from .distributed import fit_images_on_cluster
 
         return fit_images_on_cluster(args.dask, args.inputs, out, options, overwrite=args.overwrite)
     for path in args.inputs:
@@ -413,54 +401,6 @@ def _cmd_fit_image(args) -> int:
             continue
         print(fit_image_to_folder(path, out, options))
     return 0
-
-
-def fit_image_to_folder(path, out: Path, options: dict) -> str:
-    """Fit one image and write its outputs into ``out``; returns the summary line."""
-    from .image_fit import fit_image
-
-    stem = Path(path).stem
-    fit = fit_image(path, **options)
-    maps_path = _write_fit(fit, out, f"{stem}_", str(path), options.get("illuminant", "D65"))
-    summary = fit.summary()
-    return (
-        f"{path}: {summary['fitted']} of {summary['pixels']} pixels fitted ({100 * summary['fitted_fraction']:.1f} %), "
-        f"CIEDE2000 median {summary['median_dE2000']:.3g}, 95th percentile {summary['p95_dE2000']:.3g}, "
-        f"blend {summary['melanin_blend']:.3g}, white balance {' '.join(f'{g:.3f}' for g in fit.white_balance)}, "
-        f"model {summary['model']}, {summary['seconds']:.1f} s -> {maps_path}"
-    )
-
-
-def _write_fit(fit, out: Path, prefix: str, source: str, illuminant: str) -> Path:
-    """Write ``<prefix>reconstructed.png``, ``<prefix>dE2000.png`` and, last (atomically, so that its
-    presence marks the image done), ``<prefix>maps.exr``; returns the maps path."""
-    import json
-
-    from .images import write_exr, write_png
-
-    write_png(out / f"{prefix}reconstructed.png", _encoded_srgb(fit.fitted_linear_rgb))
-    write_png(out / f"{prefix}dE2000.png", _delta_e_image(fit.residual_dE2000))
-    write_png(out / f"{prefix}skin_mask.png", fit.skin_mask[..., None])  # one channel, 0 or 255
-    attributes = {
-        "skinfit:source": source,
-        "skinfit:illuminant": illuminant,
-        "skinfit:white_balance": " ".join(f"{g:.9g}" for g in fit.white_balance),
-        "skinfit:model": fit.model_name,
-        "skinfit:summary": json.dumps(fit.summary()),
-    }
-    maps_path = out / f"{prefix}maps.exr"
-    write_exr(maps_path, fit.maps(), attributes)
-    return maps_path
-
-
-def _encoded_srgb(linear: np.ndarray, rows: int = 256) -> np.ndarray:
-    """sRGB-encoded float32 copy of a linear image, in bands of rows (NumPy: a 4096 x 4096 image
-    through JAX would hold several float64 copies at once)."""
-    encoded = np.empty(linear.shape, np.float32)
-    for top in range(0, linear.shape[0], rows):
-        band = np.clip(linear[top : top + rows], 0.0, 1.0).astype(np.float32)
-        encoded[top : top + rows] = np.where(band <= 0.0031308, 12.92 * band, 1.055 * np.power(band, 1 / 2.4) - 0.055)
-    return encoded
 
 
 def _white_balance(text: str):
@@ -476,17 +416,7 @@ def _white_balance(text: str):
     return gains
 
 
-def _delta_e_image(delta_e: np.ndarray) -> np.ndarray:
-    """CIEDE2000 map as a colour image: black 0 -> yellow 2 (clipped)."""
-    t = np.clip(delta_e / 2.0, 0.0, 1.0).astype(np.float32)[..., None]
-    return t * np.array([1.0, 0.85, 0.1], np.float32)
-
-
 def _cmd_render_maps(args) -> int:
-    from .colorimetry import srgb_encode
-    from .image_fit import render_maps
-    from .images import read_exr_channels, write_png
-
     channels, attributes = read_exr_channels(args.maps)
     missing = [c for c in ("melanin", "haemoglobin", "shading", "melanin_blend") if c not in channels]
     if missing:
@@ -663,8 +593,6 @@ def _enable_compilation_cache() -> None:
     a folder the user configured for JAX already wins. Only the command line does this: a library
     should not change global JAX settings.
     """
-    import jax
-
     if jax.config.jax_compilation_cache_dir:
         return
     folder = os.environ.get("SKINFIT_CACHE_DIR") or os.path.join(

@@ -32,6 +32,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from ._batching import map_batches
 from ._validate import SkinfitInputError
 from .colorimetry import DEFAULT_ILLUMINANT, linear_srgb_weights
 from .params import SkinParams
@@ -247,7 +248,6 @@ def _interpolated_node_data(grid, roots, melanin_blend, melanin_max, haemoglobin
     derivatives cost ~11 spectra per node against one for a value (measured)."""
     from scipy.interpolate import RectBivariateSpline
 
-    from ._batching import map_batches
 
     evaluate = lambda r: (model_rgb(r, melanin_blend, melanin_max, haemoglobin_max, weights, model),)  # noqa: E731
     (value,) = map_batches(evaluate, (roots,), min(len(roots), 256))

@@ -1,6 +1,6 @@
 """``skinfit fit-image --dask ADDRESS``: the images of a batch as tasks on an existing Dask cluster.
 
-Each image is one task (``cli.fit_image_to_folder``); workers write their outputs into the shared
+Each image is one task (``fit_outputs.fit_image_to_folder``); workers write their outputs into the shared
 output folder, the maps EXR last, so an interrupted batch keeps every finished image and a rerun
 skips them. Needs ``dask.distributed`` (``pip install "skinfit[dask]"``).
 """
@@ -10,6 +10,7 @@ from __future__ import annotations
 from pathlib import Path
 
 from ._validate import SkinfitInputError
+from .fit_outputs import fit_image_to_folder
 
 
 def fit_images_on_cluster(address: str, inputs, out: Path, options: dict, *, overwrite: bool = False) -> int:
@@ -19,8 +20,6 @@ def fit_images_on_cluster(address: str, inputs, out: Path, options: dict, *, ove
         from distributed import Client, as_completed
     except ImportError:
         raise SkinfitInputError('--dask needs dask.distributed: pip install "skinfit[dask]"') from None
-    from .cli import fit_image_to_folder
-
     todo = []
     for path in inputs:
         maps_path = Path(out) / f"{Path(path).stem}_maps.exr"

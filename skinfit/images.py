@@ -18,6 +18,7 @@ from pathlib import Path
 import numpy as np
 
 from ._validate import SkinfitInputError
+from .colorimetry import srgb_decode
 
 
 def _oiio():
@@ -76,7 +77,6 @@ def to_linear_srgb(rgb: np.ndarray, space: str) -> np.ndarray:
     """Convert RGB in ``space`` (see the module docstring) to linear sRGB."""
     import colour
 
-    from .colorimetry import srgb_decode
 
     key = space.lower()
     if key == "linear":

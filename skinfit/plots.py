@@ -6,6 +6,9 @@ from pathlib import Path
 
 import numpy as np
 
+from .colorimetry import srgb_encode
+from .pixel_fit import PixelStatus
+
 
 def _pyplot():
     import matplotlib
@@ -86,10 +89,8 @@ def plot_image_fit(photo_srgb, fit, edited_srgb, path: str | Path, edit_label: s
     """An image fit at a glance: the photo, its reconstruction, the melanin, haemoglobin and
     shading maps, the CIEDE2000 and status maps, and an edit re-rendered. ``fit`` is an
     ``ImageFit``; the sRGB images are encoded (h, w, 3) in [0, 1]."""
-    from .image_fit import PixelStatus
 
     plt = _pyplot()
-    from .colorimetry import srgb_encode
 
     skin = (fit.status == PixelStatus.SUCCESS) | (fit.status == PixelStatus.MAX_STEPS)
     masked = lambda a: np.ma.masked_where(~skin, a)  # noqa: E731

@@ -87,7 +87,7 @@ def profile(
         entry_fresnel: multiply by (1 - F0) so the profile integrates to ``diffuse_reflectance``
             instead of R12(0).
         quadrature: ``HankelQuadrature`` settings (accuracy against cost).
-        Other options (overrides of the model) as in ``diffuse_reflectance``.
+        **options: overrides of the model, as in ``diffuse_reflectance``.
 
     Returns:
         Array of shape (..., n_wavelengths, n_radii).

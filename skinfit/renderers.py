@@ -44,12 +44,14 @@ import scipy.optimize
 from . import __version__
 from ._validate import SkinfitInputError
 from .colorimetry import DEFAULT_ILLUMINANT, linear_srgb_weights
+from .map_rendering import render_maps
 from .mitsuba import (mitsuba_heterogeneous_xml, mitsuba_material, mitsuba_medium, mitsuba_spectral_medium, mitsuba_xml,
                       write_mitsuba_volume)
 from .params import SkinParams
 from .profiles import profile
 from .reflectance import diffuse_reflectance, model_with_options
 from .renderer_media import DEFAULT_CONVENTIONS, RendererConventions, RendererMedium, medium_table, transport_medium
+from .tables import ProfileTable, write_csv
 
 ENERGY_FRACTION = 0.997
 GAUSSIAN_TERMS = 6
@@ -374,9 +376,7 @@ def write_renderer(result: RendererProfiles, fmt: str, path: str | Path) -> Path
     path.parent.mkdir(parents=True, exist_ok=True)
     meta = result.metadata
     if fmt == "table":
-        from .tables import ProfileTable, _write_csv
-
-        _write_csv(ProfileTable(result.wavelengths_nm, result.radii_mm, result.spectral, result.rgb, result.reflectance, meta), path)
+        write_csv(ProfileTable(result.wavelengths_nm, result.radii_mm, result.spectral, result.rgb, result.reflectance, meta), path)
     elif fmt == "pbrt":
         path.write_text(pbrt_v4_material(result), encoding="utf-8")
     elif fmt in ("mitsuba", "mitsuba-spectral"):
@@ -433,7 +433,6 @@ def renderer_textures(maps: dict, *, illuminant: str = DEFAULT_ILLUMINANT, grid:
     the maps' range. Albedos beyond what the medium or Blender's measured curve reach (maps
     zeroed outside skin) are clipped into their range.
     """
-    from .image_fit import render_maps
 
     model = model_with_options(model, ior=ior)
     melanin, haemoglobin = (np.asarray(maps[k], dtype=float) for k in ("melanin", "haemoglobin"))

@@ -31,8 +31,10 @@ import numpy as np
 import optimistix as optx
 
 from . import chromophores as chrom
-from ._validate import SkinfitInputError, wavelengths as _check_wavelengths
 from ._batching import map_batches, pad_size
+from ._validate import SkinfitInputError, wavelengths as _check_wavelengths
+from .colorimetry import xyz_weights
+from .params import SkinParams
 from ._linalg import solve_normal
 from .fit_table import build_fit_table
 from .fit_variables import (
@@ -90,8 +92,6 @@ class SpectralFit:
 
     def skin_params(self):
         """The fitted skin parameters as ``SkinParams`` of shape (n,)."""
-        from .params import SkinParams
-
         return SkinParams(*(self.parameters[name] for name in CHROMOPHORES))
 
     @property
@@ -502,7 +502,6 @@ def _delta_e2000(wavelengths, measured, fitted) -> np.ndarray:
     """CIEDE2000 between measured and fitted spectra (D65, CIE 1931 2 degree), via colour-science."""
     import colour
 
-    from .colorimetry import xyz_weights
 
     weights = xyz_weights(wavelengths)
     white = colour.xy_to_XYZ(colour.CCS_ILLUMINANTS["CIE 1931 2 Degree Standard Observer"]["D65"])

@@ -99,11 +99,11 @@ def write_table(table: ProfileTable, path: str | Path) -> Path:
     if suffix not in TABLE_FORMATS:
         raise SkinfitInputError(f"unknown table format {path.suffix!r}; use one of {', '.join(TABLE_FORMATS)}")
     path.parent.mkdir(parents=True, exist_ok=True)
-    {".csv": _write_csv, ".npz": _write_npz, ".exr": _write_exr}[suffix](table, path)
+    {".csv": write_csv, ".npz": _write_npz, ".exr": _write_exr}[suffix](table, path)
     return path
 
 
-def _write_csv(table: ProfileTable, path: Path) -> None:
+def write_csv(table: ProfileTable, path: Path) -> None:
     header = [f"# {line}" for line in json.dumps(table.metadata, indent=1).splitlines()]
     header.append(
         "# columns: radius_mm, then R(r) in mm^-2 per wavelength (R_<nm>nm), then linear sRGB profiles"

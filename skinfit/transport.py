@@ -34,6 +34,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from ._validate import SkinfitInputError, is_concrete
 from .fresnel import fresnel_reflectance
 
 STREAMS = 16
@@ -192,8 +193,6 @@ def transport_reflectance(layers, *, ior_above: float = 1.0, streams: int = STRE
     same concrete ``ior`` (or give it as ``ior``, which then overrides the layers', e.g. under
     jit); ``anisotropy`` is each layer's g. ``semi_infinite`` likewise overrides reading the bottom
     layer's thickness (which must otherwise be concrete)."""
-    from ._validate import SkinfitInputError, is_concrete
-
     if ior is not None:
         values = np.array([float(ior)])
     else:
