@@ -1,4 +1,5 @@
-"""The README's two newcomer commands stay true: CI runs the test one verbatim."""
+"""The README's two newcomer commands stay true (CI runs the test one verbatim; the docs' index shows
+the same two), and every table of measured results in the README or the docs is its saved file."""
 
 from pathlib import Path
 
@@ -17,19 +18,31 @@ def test_ci_runs_the_readme_test_command_verbatim():
     assert readme[1].endswith("pytest") and "[test]" in readme[1]
 
 
+def _block(marker: str) -> str:
+    """The text between <!-- marker:start --> and <!-- marker:end --> in the README or a docs page
+    (exactly one of them holds it)."""
+    found = [text.split(f"<!-- {marker}:start -->\n", 1)[1].split(f"\n<!-- {marker}:end -->", 1)[0]
+             for text in (path.read_text() for path in [ROOT / "README.md", *sorted((ROOT / "docs").glob("*.md"))])
+             if f"<!-- {marker}:start -->" in text]
+    assert len(found) == 1, f"{marker}: found in {len(found)} files"
+    return found[0]
+
+
+def test_the_docs_index_shows_the_readme_commands():
+    assert _command_lines((ROOT / "docs" / "index.md").read_text()) == _command_lines((ROOT / "README.md").read_text())
+
+
 def test_readme_main_command_runs_the_demo():
     assert _command_lines((ROOT / "README.md").read_text())[0].endswith("skinfit demo")
 
 
 def test_readme_benchmark_tables_are_the_saved_benchmark_output():
-    readme = (ROOT / "README.md").read_text()
-    block = readme.split("<!-- bench:start -->\n", 1)[1].split("\n<!-- bench:end -->", 1)[0]
+    block = _block("bench")
     assert block == (ROOT / "benchmarks" / "results" / "pareto" / "summary.md").read_text().strip()
 
 
 def test_readme_calibration_summary_is_the_saved_calibration_report():
-    readme = (ROOT / "README.md").read_text()
-    block = readme.split("<!-- calibration:start -->\n", 1)[1].split("\n<!-- calibration:end -->", 1)[0]
+    block = _block("calibration")
     assert block == (ROOT / "benchmarks" / "results" / "calibration_summary.md").read_text().strip()
 
 
@@ -50,18 +63,15 @@ def _constant(constants, dotted):
 
 
 def test_readme_measured_fit_table_is_the_saved_benchmark_output():
-    readme = (ROOT / "README.md").read_text()
-    block = readme.split("<!-- fit-measured:start -->\n", 1)[1].split("\n<!-- fit-measured:end -->", 1)[0]
+    block = _block("fit-measured")
     assert block == (ROOT / "benchmarks" / "results" / "fit_measured.md").read_text().strip()
 
 
 def test_readme_real_input_table_is_the_saved_benchmark_output():
-    readme = (ROOT / "README.md").read_text()
-    block = readme.split("<!-- fit-photos:start -->\n", 1)[1].split("\n<!-- fit-photos:end -->", 1)[0]
+    block = _block("fit-photos")
     assert block == (ROOT / "benchmarks" / "results" / "fit_photos.md").read_text().strip()
 
 
 def test_readme_renderer_table_is_the_saved_benchmark_output():
-    readme = (ROOT / "README.md").read_text()
-    block = readme.split("<!-- renderers:start -->\n", 1)[1].split("\n<!-- renderers:end -->", 1)[0]
+    block = _block("renderers")
     assert block == (ROOT / "benchmarks" / "results" / "renderers.md").read_text().strip()

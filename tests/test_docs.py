@@ -1,0 +1,32 @@
+"""The documentation site builds without a warning (``mkdocs build --strict``), lists every page,
+and holds every section of the model notes that a docstring cites."""
+
+import re
+import subprocess
+import sys
+from pathlib import Path
+
+import yaml
+
+ROOT = Path(__file__).resolve().parent.parent
+
+
+def test_the_site_builds_strictly(tmp_path):
+    result = subprocess.run([sys.executable, "-m", "mkdocs", "build", "--strict", "--site-dir", str(tmp_path / "site")], cwd=ROOT,
+                            capture_output=True, text=True, env={"NO_MKDOCS_2_WARNING": "1", "PATH": "", "HOME": str(tmp_path)}, timeout=600)
+    assert result.returncode == 0, result.stderr[-3000:]
+    assert (tmp_path / "site" / "api" / "index.html").read_text().count('id="skinfit.') > 100  # the reference was generated
+
+
+def test_every_page_is_in_the_navigation():
+    config = yaml.safe_load((ROOT / "mkdocs.yml").read_text())
+    listed = {next(iter(entry.values())) for entry in config["nav"]}
+    assert listed == {p.name for p in (ROOT / "docs").glob("*.md")}
+
+
+def test_the_model_notes_hold_every_cited_section():
+    cited = set()
+    for path in [*(ROOT / "skinfit").glob("*.py"), *(ROOT / "tests").glob("*.py")]:
+        cited |= set(re.findall(r"MODEL\.md (\d+(?:\.\d+)?)", path.read_text()))
+    headings = set(re.findall(r"^#{2,3} (\d+(?:\.\d+)?)\.? ", (ROOT / "docs" / "model-notes.md").read_text(), flags=re.M))
+    assert cited and cited <= headings, sorted(cited - headings)
