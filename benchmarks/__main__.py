@@ -3,7 +3,7 @@
 Writes into a folder it names (default benchmarks/results/pareto): points.csv (every point: time
 after compilation, compile time, error against the same run's reference, baseline ratio, whether
 it is on the Pareto front), one pareto_<sweep>.png per sweep, stress.json and summary.md (the
-README's tables). See benchmarks/pareto.py and benchmarks/stress.py for what is measured.
+docs' tables). See benchmarks/pareto.py and benchmarks/stress.py for what is measured.
 """
 
 from __future__ import annotations

@@ -159,7 +159,7 @@ def nist_check(data: Path, model) -> dict:
 
 
 def summary_markdown(record: dict) -> str:
-    """The README's calibration table, from the saved record (a test keeps the two equal)."""
+    """The calibration table of docs/model.md, from the saved record (a test keeps the two equal)."""
     rep, cv = record["report"], record["cross_validation"]
     lines = [
         f"Measured {record['date']} ({record['machine']}), commit {record['commit']}: "

@@ -73,7 +73,7 @@ ROWS = (
 
 
 def summary_markdown(result: dict) -> str:
-    """The README's table of measured-spectra fits, from the saved record (a test keeps the two equal)."""
+    """The table of measured-spectra fits in docs/fitting-spectra.md, from the saved record (a test keeps the two equal)."""
     lines = ["| model, options | µs per spectrum | first call | CIEDE2000 median / p95 | RMS median | SUCCESS | MAX_STEPS |",
              "|---|---|---|---|---|---|---|"]
     for key, label in ROWS:

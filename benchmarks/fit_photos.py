@@ -164,7 +164,7 @@ def main(argv=None):
 
 
 def markdown(record) -> str:
-    """The README's table of real inputs (kept equal to the README by tests/test_readme.py)."""
+    """The table of real inputs in docs/fitting-images.md (kept equal to it by tests/test_readme.py)."""
     lines = [
         f"Real inputs, default settings ({record['model']}; `python -m benchmarks.fit_photos`, {record['date']}, "
         f"{record['machine']}); CIEDE2000 over every mask pixel; speckle: skin pixels whose melanin is off its 3×3 median by 2×:",

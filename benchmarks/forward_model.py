@@ -172,7 +172,7 @@ def main(argv=None):
 
 
 def markdown(res):
-    """The README table."""
+    """The forward-model table (docs/performance.md)."""
     epi, thin = res["closed_form_vs_image_sum"][0], res["closed_form_vs_image_sum"][1]
     pt, rb, sw = res["profile_table"], res["reflectance_batch"], res["sweep"]
     rows = [

@@ -19,7 +19,7 @@ For the calibrated default model and DJ2006, the three presets and ``--random`` 
   export (base colour compensated for the measured drift, ``RANDOM_WALK``) against the target, and
   the uncompensated base colour = target albedo.
 
-Writes benchmarks/results/renderers.{json,md} (the README's table is the .md).
+Writes benchmarks/results/renderers.{json,md} (the table in docs/renderers.md is the .md).
 """
 
 from __future__ import annotations
@@ -183,7 +183,7 @@ def _summary(rows: dict) -> tuple[float, float]:
 
 
 def markdown(record) -> str:
-    """The README's renderer table (kept equal to the README by tests/test_readme.py)."""
+    """The renderer table of docs/renderers.md (kept equal to it by tests/test_readme.py)."""
     lines = [f"Exports rendered (`python -m benchmarks.renderers`, {record['date']}, {record['machine']}; Mitsuba {record['mitsuba']}, "
              "`volpathmis`, slab 400 × 400 × 100 mm under a white environment, normal view, specular subtracted): rendered / model "
              "linear-sRGB albedo per channel, with the render's standard error, and CIEDE2000:", "",

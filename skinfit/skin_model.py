@@ -223,7 +223,7 @@ class SkinModel(eqx.Module):
     @classmethod
     def calibrated(cls) -> "SkinModel":
         """The model calibrated on measured skin that ships with skinfit (``spectra/calibrated_model.json``;
-        how it was made: ``benchmarks/calibrate_model.py`` and the README)."""
+        how it was made: ``benchmarks/calibrate_model.py`` and docs/model.md)."""
         return _calibrated()
 
     @classmethod
