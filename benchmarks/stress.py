@@ -48,8 +48,8 @@ import numpy as np
 
 import skinfit
 from skinfit.hankel import HankelQuadrature, inverse_kernel
-from skinfit.profiles import _skin_profile
-from skinfit.reflectance import _skin_reflectance, stack_transfer
+from skinfit.profiles import skin_profile
+from skinfit.reflectance import skin_reflectance, stack_transfer
 
 #: The sweep stresses the DJ2006 diffusion model (its validity domain is the multipole's).
 MODEL = skinfit.SkinModel.dj2006()
@@ -102,7 +102,7 @@ def _model(fields):
 
 def _reflectance(fields, lam):
     params = skinfit.SkinParams(fields["melanin"], fields["melanin_blend"], fields["haemoglobin"])
-    return params, _skin_reflectance(params, lam, _model(fields))
+    return params, skin_reflectance(params, lam, _model(fields))
 
 
 @jax.jit
@@ -129,7 +129,7 @@ def frequency_response(fields, lam, q):
 def profiles(fields, lam, radii, quadrature=HankelQuadrature()):
     params, _ = _reflectance(fields, lam)
     q, kernel = inverse_kernel(radii, quadrature)
-    return _skin_profile(params, lam, radii, q, kernel, _model(fields), False)
+    return skin_profile(params, lam, radii, q, kernel, _model(fields), False)
 
 
 def check_chunk(fields: dict, lam: np.ndarray, dtype) -> dict[str, int]:

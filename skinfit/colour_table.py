@@ -36,7 +36,7 @@ from ._batching import map_batches
 from ._validate import SkinfitInputError
 from .colorimetry import DEFAULT_ILLUMINANT, linear_srgb_weights
 from .params import SkinParams
-from .reflectance import _skin_reflectance, model_with_options
+from .reflectance import skin_reflectance, model_with_options
 from .skin_model import SkinModel, Transport, cache_key
 
 #: The box of the image fit. Three channels cannot tell heavy melanin with much blood from heavy
@@ -211,7 +211,7 @@ def params_rgb(columns, weights, model: SkinModel):
     """Linear sRGB (shading 1) of ``model`` for (C_m, beta_m, C_h) rows (n, 3), with ``weights``
     (3, wavelengths) from ``linear_srgb_weights(COLOUR_WAVELENGTHS_NM, illuminant)``."""
     params = SkinParams(columns[:, 0], columns[:, 1], columns[:, 2])
-    return _skin_reflectance(params, jnp.asarray(COLOUR_WAVELENGTHS_NM, columns.dtype), model) @ weights.T
+    return skin_reflectance(params, jnp.asarray(COLOUR_WAVELENGTHS_NM, columns.dtype), model) @ weights.T
 
 
 @eqx.filter_jit

@@ -37,8 +37,8 @@ from . import chromophores as chrom
 from .colorimetry import DEFAULT_ILLUMINANT, delta_e2000, linear_srgb_to_lab, linear_srgb_weights
 from .hankel import HankelQuadrature, inverse_kernel
 from .params import PRESET_NAMES, SkinParams, preset
-from .profiles import _skin_profile, captured_reflectance
-from .reflectance import _skin_reflectance, diffuse_reflectance, model_with_options
+from .profiles import skin_profile, captured_reflectance
+from .reflectance import skin_reflectance, diffuse_reflectance, model_with_options
 from .skin_model import SkinModel, resolve_model
 from ._validate import SkinfitInputError, check_range
 
@@ -249,7 +249,7 @@ def _program(plan: Plan):
 
     def values(params, model, scale):
         lam = jnp.asarray(lam_host, scale.dtype)
-        r = _skin_reflectance(params, lam, model, scale)
+        r = skin_reflectance(params, lam, model, scale)
         out = {}
         if spectral is not None:
             out["reflectance"] = r[..., spectral]
@@ -267,7 +267,7 @@ def _program(plan: Plan):
         if kernel is not None:
             lam = jnp.asarray(lam_host, scale.dtype)
             radii = np.asarray(plan.radii_mm)
-            profiles = _skin_profile(params, lam, radii, *kernel, model, True, scale)
+            profiles = skin_profile(params, lam, radii, *kernel, model, True, scale)
             if spectral is not None:
                 out["profiles"] = profiles[..., spectral, :]
             if colour is not None:

@@ -29,7 +29,7 @@ from .params import SkinParams
 from .reflectance import (
     _check_options,
     _check_stack,
-    _checked_wavelengths,
+    checked_wavelengths,
     model_with_options,
     normal_fresnel_reflectance,
     skin_stack_reflectance,
@@ -92,16 +92,16 @@ def profile(
     Returns:
         Array of shape (..., n_wavelengths, n_radii).
     """
-    lam = _checked_wavelengths(wavelengths_nm)
+    lam = checked_wavelengths(wavelengths_nm)
     model = model_with_options(model, adding=adding, blood_oxygenation=blood_oxygenation,
                                epidermis_thickness_mm=epidermis_thickness_mm, ior=ior, method=method, anisotropy=anisotropy)
     radii = check_radii(radii_mm)
     q, kernel = inverse_kernel(radii, quadrature)
-    return _skin_profile(params, lam, radii, q, kernel, model, bool(entry_fresnel), jnp.asarray(scattering_scale))
+    return skin_profile(params, lam, radii, q, kernel, model, bool(entry_fresnel), jnp.asarray(scattering_scale))
 
 
 @eqx.filter_jit
-def _skin_profile(params, lam, radii, q, kernel, model, entry_fresnel, scattering_scale=1.0):
+def skin_profile(params, lam, radii, q, kernel, model, entry_fresnel, scattering_scale=1.0):
     layers = model.layers(params, lam, scattering_scale=scattering_scale)
     one = jnp.ones((), lam.dtype)
     adding = model.method.adding if isinstance(model.method, Diffusion) else "directional"
@@ -151,7 +151,7 @@ def captured_reflectance(
     sideways beyond the port is lost; as a -> inf this tends to ``diffuse_reflectance``. With a
     transport model the profile is energy-corrected (see ``profile``).
     """
-    lam = _checked_wavelengths(wavelengths_nm)
+    lam = checked_wavelengths(wavelengths_nm)
     model = model_with_options(model, adding=adding, blood_oxygenation=blood_oxygenation,
                                epidermis_thickness_mm=epidermis_thickness_mm, ior=ior)
     if not (np.isfinite(port_radius_mm) and port_radius_mm > 0):

@@ -157,12 +157,12 @@ def diffuse_reflectance(
     Returns:
         Array of shape (..., n_wavelengths): (1 - F0) R12(q = 0).
     """
-    lam = _checked_wavelengths(wavelengths_nm)
+    lam = checked_wavelengths(wavelengths_nm)
     model = model_with_options(model, adding=adding, blood_oxygenation=blood_oxygenation,
                                epidermis_thickness_mm=epidermis_thickness_mm, ior=ior, method=method,
                                anisotropy=anisotropy, streams=streams)
     _validate.check_range("scattering_scale", scattering_scale, 1e-3, 1e3)
-    return _skin_reflectance(params, lam, model, jnp.asarray(scattering_scale))
+    return skin_reflectance(params, lam, model, jnp.asarray(scattering_scale))
 
 
 def model_with_options(model: SkinModel | None, *, adding=None, blood_oxygenation=None, epidermis_thickness_mm=None,
@@ -194,7 +194,7 @@ def model_with_options(model: SkinModel | None, *, adding=None, blood_oxygenatio
 
 
 @eqx.filter_jit
-def _skin_reflectance(params, lam, model: SkinModel, scattering_scale=1.0):
+def skin_reflectance(params, lam, model: SkinModel, scattering_scale=1.0):
     """Diffuse reflectance (1 - F0) R12(0) of ``model`` (traced constants; the method is static)."""
     epidermis, dermis = model.layers(params, lam, scattering_scale=scattering_scale)
     return skin_stack_reflectance(epidermis, dermis, model.method)
@@ -214,5 +214,5 @@ def skin_stack_reflectance(epidermis: Layer, dermis: Layer, method: Diffusion | 
     return transport_reflectance(layers, streams=method.streams, ior=method.ior, semi_infinite=True)
 
 
-def _checked_wavelengths(wavelengths_nm) -> jax.Array:
+def checked_wavelengths(wavelengths_nm) -> jax.Array:
     return _validate.wavelengths(wavelengths_nm, low=chrom.WAVELENGTH_RANGE_NM[0], high=chrom.WAVELENGTH_RANGE_NM[1])

@@ -39,7 +39,7 @@ from jaxtyping import Array, ArrayLike, Float
 from . import _validate
 from .fresnel import fresnel_reflectance
 from .fresnel import normal_fresnel_reflectance
-from .reflectance import _checked_wavelengths, model_with_options, skin_stack_reflectance
+from .reflectance import checked_wavelengths, model_with_options, skin_stack_reflectance
 from .skin_model import SkinModel
 from .params import SkinParams
 
@@ -152,7 +152,7 @@ def _check_directions(name, value):
 
 def _checked(wavelengths_nm, roughness, surface_ior, **directions):
     """Validated wavelengths and directions (in the order given) of a surface-layer call."""
-    lam = _checked_wavelengths(wavelengths_nm)
+    lam = checked_wavelengths(wavelengths_nm)
     _validate.check_range("roughness", roughness, 1e-3, 2.0)
     _validate.check_range("surface_ior", surface_ior, 1.0 + 1e-6, 3.0)
     return lam, *(_check_directions(name, value) for name, value in directions.items())

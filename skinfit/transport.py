@@ -94,7 +94,7 @@ def _generators(albedo, anisotropy, streams, critical_cosine):
     return gamma_r, gamma_t, depth_factor
 
 
-def _solve(a, b):
+def solve_dominant(a, b):
     """a^-1 b by Gauss-Jordan elimination without pivoting, in plain array operations.
 
     Every system here is I - M with M a product of reflection operators, whose columns (photon
@@ -120,7 +120,7 @@ def _double(r, t, times):
 
     def step(_, rt):
         r, t = rt
-        x = _solve(eye - r @ r, t)  # (I - R R)^-1 T
+        x = solve_dominant(eye - r @ r, t)  # (I - R R)^-1 T
         return r + t @ r @ x, t @ x
 
     return jax.lax.fori_loop(0, times, step, (r, t))
@@ -177,12 +177,12 @@ def stack_reflectance_transport(absorption, reduced_scattering, thickness, aniso
             continue
         depth = extinction[k] * jnp.where(jnp.isfinite(thickness[k]), thickness[k], 1.0) * depth_factor
         r, t = _extrapolated(gamma_r, gamma_t, depth, _FINITE_DOUBLINGS)
-        below = r if below is None else r + t @ _solve(eye - below @ r, below @ t)
+        below = r if below is None else r + t @ solve_dominant(eye - below @ r, below @ t)
 
     mu = jnp.asarray(_quadrature(streams, cosine)[0], dtype)
     fresnel = fresnel_reflectance(mu, jnp.asarray(ior, dtype), jnp.asarray(ior_above, dtype)).at[-1].set(0.0)  # nothing travels up along the beam
     entry = 1.0 - ((ior - ior_above) / (ior + ior_above)) ** 2
-    upward = _solve(eye - below * fresnel[None, :], (below[:, -1] * entry)[:, None])[:, 0]
+    upward = solve_dominant(eye - below * fresnel[None, :], (below[:, -1] * entry)[:, None])[:, 0]
     return jnp.sum((1.0 - fresnel) * upward).astype(out_dtype)
 
 

@@ -30,7 +30,7 @@ import numpy as np
 
 from ._batching import map_batches, pad_size
 from .fit_variables import VARIABLES, stationarity
-from .transport import _solve
+from .transport import solve_dominant
 
 #: Lock-step iterations between two gatherings of the unconverged spectra.
 ROUND_STEPS = 6
@@ -89,7 +89,7 @@ class BoundedPolish:
 
         def solve(hessian):
             system = jnp.where(both, hessian, 0.0) + jnp.diag(jnp.where(keep, state.damping * scale, 1.0))
-            step = _solve(system, jnp.where(keep, -gradient, 0.0)[:, None])[:, 0]
+            step = solve_dominant(system, jnp.where(keep, -gradient, 0.0)[:, None])[:, 0]
             step = jnp.where(jnp.all(jnp.isfinite(step)), step, 0.0)
             return step, -(gradient @ step + 0.5 * step @ hessian @ step)
 

@@ -8,7 +8,7 @@ import pytest
 import skinfit
 from skinfit import ScatteringLaw, SkinfitInputError, SkinModel
 from skinfit import chromophores as chrom
-from skinfit.reflectance import _skin_reflectance
+from skinfit.reflectance import skin_reflectance
 
 from .conftest import DJ2006
 
@@ -34,7 +34,7 @@ def test_changing_a_constant_inside_jit_does_not_retrace(light):
     @jax.jit
     def reflectance(model):
         traces.append(1)
-        return _skin_reflectance(light, jnp.asarray(WL), model)
+        return skin_reflectance(light, jnp.asarray(WL), model)
 
     base = reflectance(DJ2006)
     variants = [
@@ -92,7 +92,7 @@ def test_gradients_and_vmap_go_through_the_constants(light):
     assert float(g) == pytest.approx(float(fd), rel=1e-5)
     many = jax.vmap(lambda d: skinfit.diffuse_reflectance(light, WL, model=DJ2006.replace(epidermis_thickness_mm=d)))(jnp.array([0.1, 0.25]))
     np.testing.assert_allclose(many[1], skinfit.diffuse_reflectance(light, WL, model=DJ2006), rtol=1e-13)
-    assert np.all(np.isfinite(jax.grad(lambda r: jnp.sum(_skin_reflectance(light, jnp.asarray(WL), DJ2006.replace(vessel_radius_mm=r))))(0.0)))
+    assert np.all(np.isfinite(jax.grad(lambda r: jnp.sum(skin_reflectance(light, jnp.asarray(WL), DJ2006.replace(vessel_radius_mm=r))))(0.0)))
 
 
 def test_optional_chromophores_default_to_dj2006_and_act_where_they_should(light):
