@@ -2,6 +2,8 @@
 
 import csv
 
+import pytest
+
 from benchmarks import __main__ as bench
 from benchmarks.pareto import Point, pareto_front
 
@@ -29,6 +31,7 @@ def test_benchmark_command_writes_csv_plots_and_summary(tmp_path):
     assert "Reflectance only costs 1/" in summary
 
 
+@pytest.mark.slow
 def test_transport_benchmark_writes_its_results(tmp_path):
     """benchmarks.transport_fit on two NIST subjects: both methods fit, transport lower in residual."""
     import json

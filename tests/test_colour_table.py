@@ -63,6 +63,7 @@ def test_table_rejects_a_blend_outside_the_unit_interval():
         colour_table(1.5)
 
 
+@pytest.mark.slow
 def test_transport_table_interpolates_the_transport_model():
     """method="transport": node values from adding-doubling, derivatives from the interpolating
     spline; on a coarse 17 x 17 table (the image-fit test's) the spline follows exact transport in

@@ -193,6 +193,7 @@ def test_cli_dask_needs_a_reachable_scheduler(tmp_path, capsys):
     assert "cannot reach the Dask scheduler" in capsys.readouterr().err
 
 
+@pytest.mark.slow
 def test_transport_image_fit_recovers_transport_renderings():
     """method="transport": pixels rendered by exact transport are inverted through a colour table
     built with transport (a coarse one here, to keep the test short) and the exact transport

@@ -32,6 +32,7 @@ def calibration(population):
                            folds=2, max_steps=30, progress=False)
 
 
+@pytest.mark.slow
 def test_known_constants_are_recovered(population, calibration):
     params, _, _ = population
     expected_mie = 1.3 * float(DJ2006.epidermis_scattering.mie_mm)

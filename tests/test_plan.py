@@ -63,6 +63,7 @@ def test_rgb_plan_keeps_its_colour_error_on_parameters_it_was_not_chosen_on():
     assert error.max() <= tolerance
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize(("model_name", "footprint"), [("dj2006", 4.0), ("calibrated", 10.0)])
 def test_a_profile_inside_one_pixel_is_skipped_and_really_is_inside(model_name, footprint):
     """A distant face, a few pixels across (the calibrated model's dark skin returns more light from

@@ -16,6 +16,7 @@ def test_ci_runs_the_readme_test_command_verbatim():
     assert len(readme) == 2, "the README gives a newcomer exactly two commands"
     assert ci == [readme[1]]
     assert readme[1].endswith("pytest") and "[test]" in readme[1]
+    assert "\npytest -m slow" in (ROOT / ".ci" / "run").read_text()  # and the slow tier after it
 
 
 def _block(marker: str) -> str:

@@ -61,6 +61,7 @@ def test_standard_errors_match_the_scatter_of_noisy_refits():
         assert 0.6 < predicted / scatter < 1.6, (name, predicted, scatter)
 
 
+@pytest.mark.slow
 def test_extended_measurement_model_is_recovered():
     """Offset, calibration and a finite port, fitted together with the chromophores."""
     params = skinfit.SkinParams(0.03, 0.5, 0.02)
@@ -146,6 +147,7 @@ def test_oil_without_a_specular_measurement_is_a_clear_error():
 WL_COARSE = np.arange(400.0, 701.0, 30.0)
 
 
+@pytest.mark.slow
 def test_transport_fit_recovers_transport_spectra_where_diffusion_cannot():
     """Spectra made by exact transport (one with no eumelanin, on the blend's bound) are recovered by
     the transport fit; the diffusion fit of the same spectra misses them (its parameters are
@@ -162,6 +164,7 @@ def test_transport_fit_recovers_transport_spectra_where_diffusion_cannot():
     assert np.all(diffusion.rms_residual > 100 * fit.rms_residual + 1e-4)
 
 
+@pytest.mark.slow
 def test_transport_fit_converges_on_a_measured_spectrum_far_from_the_model():
     """A NIST spectrum (RMS residual ~0.05, far above its noise): the bounded quasi-Newton polish
     still reaches first-order optimality, and lowers the residual below diffusion's."""

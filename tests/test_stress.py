@@ -12,6 +12,7 @@ unit = st.floats(0.0, 1.0)
 
 
 @pytest.mark.slow
+@pytest.mark.slow
 def test_fast_sweep_has_no_violations():
     report = stress.sweep(points=65536, profile_sets=32, solvers=False, progress=False)
     for dtype in ("float64", "float32"):

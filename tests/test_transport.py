@@ -53,6 +53,7 @@ STACKS = [
 ]
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("stack", STACKS, ids=[f"epi{s[0]}-{s[1]}_derm{s[2]}-{s[3]}_g{s[4]}" for s in STACKS])
 def test_two_layer_stacks_match_monte_carlo(stack):
     sa1, ss1, sa2, ss2, g = stack
