@@ -16,12 +16,20 @@ def test_the_site_builds_strictly(tmp_path):
                             capture_output=True, text=True, env={"NO_MKDOCS_2_WARNING": "1", "PATH": "", "HOME": str(tmp_path)}, timeout=600)
     assert result.returncode == 0, result.stderr[-3000:]
     assert (tmp_path / "site" / "api" / "index.html").read_text().count('id="skinfit.') > 100  # the reference was generated
+    assert "Media for path tracers" in (tmp_path / "site" / "notebooks" / "04_profiles_for_renderers" / "index.html").read_text()
 
 
-def test_every_page_is_in_the_navigation():
+def _pages(nav):
+    for entry in nav:
+        value = entry if isinstance(entry, str) else next(iter(entry.values()))
+        yield from (_pages(value) if isinstance(value, list) else [value])
+
+
+def test_every_page_and_notebook_is_in_the_navigation():
     config = yaml.safe_load((ROOT / "mkdocs.yml").read_text())
-    listed = {next(iter(entry.values())) for entry in config["nav"]}
-    assert listed == {p.name for p in (ROOT / "docs").glob("*.md")}
+    pages = {p.name for p in (ROOT / "docs").glob("*.md")} | {f"notebooks/{p.name}" for p in (ROOT / "notebooks").glob("*.py")}
+    assert set(_pages(config["nav"])) == pages
+    assert {p.name for p in (ROOT / "docs" / "notebooks").iterdir()} == {p.name for p in (ROOT / "notebooks").glob("*.py")}
 
 
 def test_the_model_notes_hold_every_cited_section():

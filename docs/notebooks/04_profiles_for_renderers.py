@@ -1,0 +1,1 @@
+../../notebooks/04_profiles_for_renderers.py

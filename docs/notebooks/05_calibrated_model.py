@@ -1,0 +1,1 @@
+../../notebooks/05_calibrated_model.py
