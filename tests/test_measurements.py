@@ -9,12 +9,12 @@ from skinfit.measurements import read_nist
 DATA = Path(__file__).resolve().parent.parent / "data"
 
 
-def test_bundled_nist_subset_reads_with_published_checks():
+def test_bundled_nist_subset_reads_with_the_values_its_readme_states():
     nist = read_nist(DATA / "nist_skin_reflectance_250-1000nm.csv")
     assert nist.average.shape == (100, 251) and nist.repeats.shape == (100, 3, 251)
     assert nist.wavelengths_nm[0] == 250 and nist.wavelengths_nm[-1] == 1000
     at_550 = nist.average[:, int(np.argmin(np.abs(nist.wavelengths_nm - 550)))]
-    # data/README.md: subject averages at 550 nm span 0.114 to 0.416
+    # the NIST data's README (shared/data/nist-skin-reflectance): subject averages at 550 nm span 0.114 to 0.416
     assert at_550.min() == pytest.approx(0.114, abs=6e-4) and at_550.max() == pytest.approx(0.416, abs=6e-4)
     # the published average is the mean of the repeats, to the 4 printed decimals
     assert np.max(np.abs(nist.repeats.mean(axis=1) - nist.average)) < 1e-4

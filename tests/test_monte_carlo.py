@@ -1,5 +1,6 @@
 """The Monte Carlo reference: against Chandrasekhar's exact semi-infinite result, energy
-conservation, and published MCML-style skin values (MODEL.md 5.5)."""
+conservation, the model notes' own MCML-style simulation of skin stacks (MODEL.md 5.5, a different code
+from this one), and the closed-form single-scattering energy within a radius."""
 
 import numpy as np
 import pytest
@@ -31,8 +32,8 @@ def test_a_non_absorbing_slab_returns_every_photon_that_entered():
     assert 0 < mc.transmittance < entry
 
 
-@pytest.mark.parametrize("name, g, published", [("light", 0.0, 0.3765), ("medium", 0.0, 0.0499), ("dark", 0.9, 0.0072)])
-def test_skin_stacks_agree_with_the_published_monte_carlo(name, g, published):
+@pytest.mark.parametrize("name, g, notes_value", [("light", 0.0, 0.3765), ("medium", 0.0, 0.0499), ("dark", 0.9, 0.0072)])
+def test_skin_stacks_agree_with_the_model_notes_monte_carlo(name, g, notes_value):
     epidermis, dermis = skinfit.skin_layers(skinfit.preset(name), np.array([550.0]), model=DJ2006)
 
     def scalar(layer, thickness):
@@ -40,7 +41,7 @@ def test_skin_stacks_agree_with_the_published_monte_carlo(name, g, published):
                              thickness=thickness, ior=1.4, anisotropy=g)
 
     mc = monte_carlo_reflectance([scalar(epidermis, 0.25), scalar(dermis, float("inf"))], photons=20_000, seed=3)
-    assert abs(mc.reflectance - published) < 4 * mc.reflectance_error + 0.0008  # MODEL.md 5.5: its SE <= 0.0008
+    assert abs(mc.reflectance - notes_value) < 4 * mc.reflectance_error + 0.0008  # MODEL.md 5.5: its SE <= 0.0008
 
 
 def test_bad_stacks_are_clear_errors():
