@@ -41,6 +41,7 @@ from xml.sax.saxutils import quoteattr
 import numpy as np
 
 from ._validate import SkinfitInputError
+from .fresnel import normal_fresnel_reflectance
 from .renderer_media import RendererMedium
 
 #: Depth and width of the checks' slab, mm (the issue's reference scene).
@@ -108,6 +109,21 @@ def mitsuba_material(medium: dict, ior: float) -> dict:
     return {"bsdf": {"type": "dielectric", "int_ior": float(ior), "ext_ior": 1.0}, "interior": medium}
 
 
+def _xml_head(comment: str, name: str, ior: float, ior_outside: float = 1.0) -> list[str]:
+    """The comment lines and the dielectric boundary of a fragment."""
+    lines = [f"<!-- {line.replace('--', '- -')} -->" for line in comment.splitlines() if line.strip()]  # XML comments cannot hold "--"
+    return lines + [
+        f'<bsdf type="dielectric" id={quoteattr(name + "_boundary")}>',
+        f'    <float name="int_ior" value="{ior:g}"/>',
+        f'    <float name="ext_ior" value="{ior_outside:g}"/>',
+        "</bsdf>",
+    ]
+
+
+def _phase_xml(anisotropy: float) -> str:
+    return '<phase type="isotropic"/>' if anisotropy == 0 else f'<phase type="hg"><float name="g" value="{anisotropy:g}"/></phase>'
+
+
 def _xml_value(name: str, value) -> str:
     if isinstance(value, dict) and value["type"] == "rgb":
         return f'<rgb name="{name}" value="{", ".join(f"{v:.8g}" for v in value["value"])}"/>'
@@ -121,19 +137,12 @@ def mitsuba_xml(material: dict, *, name: str = "skin", comment: str = "") -> str
     with id ``{name}_boundary`` and a medium with id ``name``, to reference from a shape as
     ``<ref id="{name}_boundary"/> <ref name="interior" id="{name}"/>``."""
     bsdf, medium = material["bsdf"], material["interior"]
-    phase = medium["phase"]
-    phase_xml = '<phase type="isotropic"/>' if phase["type"] == "isotropic" else f'<phase type="hg"><float name="g" value="{phase["g"]:g}"/></phase>'
-    lines = [f"<!-- {line.replace('--', '- -')} -->" for line in comment.splitlines() if line.strip()]  # XML comments cannot hold "--"
-    lines += [
-        f'<bsdf type="dielectric" id={quoteattr(name + "_boundary")}>',
-        f'    <float name="int_ior" value="{bsdf["int_ior"]:g}"/>',
-        f'    <float name="ext_ior" value="{bsdf["ext_ior"]:g}"/>',
-        "</bsdf>",
+    lines = _xml_head(comment, name, float(bsdf["int_ior"]), float(bsdf["ext_ior"])) + [
         f'<medium type="homogeneous" id={quoteattr(name)}>',
         f'    {_xml_value("albedo", medium["albedo"])}',
         f'    {_xml_value("sigma_t", medium["sigma_t"])}',
         f'    {_xml_value("scale", medium["scale"])}',
-        f"    {phase_xml}",
+        f"    {_phase_xml(float(medium['phase'].get('g', 0.0)))}",
         "</medium>",
     ]
     return "\n".join(lines) + "\n"
@@ -172,18 +181,12 @@ def mitsuba_heterogeneous_xml(sigma_t_file: str, albedo_file: str, peak_extincti
                               name: str = "skin", comment: str = "") -> str:
     """The XML fragment of ``mitsuba_heterogeneous_medium`` with its dielectric boundary (grid
     files relative to the scene file); place the grids with a ``to_world`` in each ``volume``."""
-    phase = '<phase type="isotropic"/>' if anisotropy == 0 else f'<phase type="hg"><float name="g" value="{anisotropy:g}"/></phase>'
-    lines = [f"<!-- {line.replace('--', '- -')} -->" for line in comment.splitlines() if line.strip()]
-    lines += [
-        f'<bsdf type="dielectric" id={quoteattr(name + "_boundary")}>',
-        f'    <float name="int_ior" value="{ior:g}"/>',
-        '    <float name="ext_ior" value="1"/>',
-        "</bsdf>",
+    lines = _xml_head(comment, name, ior) + [
         f'<medium type="heterogeneous" id={quoteattr(name)}>',
         f'    <volume type="gridvolume" name="albedo"><string name="filename" value={quoteattr(albedo_file)}/></volume>',
         f'    <volume type="gridvolume" name="sigma_t"><string name="filename" value={quoteattr(sigma_t_file)}/></volume>',
         f'    <float name="scale" value="{peak_extinction:.8g}"/>',
-        f"    {phase}",
+        f"    {_phase_xml(anisotropy)}",
         "</medium>",
     ]
     return "\n".join(lines) + "\n"
@@ -219,8 +222,7 @@ def _slab_scene(mi, material: dict, film: dict, *, spp: int, seed: int, view_mm:
 
 
 def _specular(material: dict) -> float:
-    n = float(material["bsdf"]["int_ior"]) / float(material["bsdf"]["ext_ior"])
-    return ((n - 1.0) / (n + 1.0)) ** 2
+    return float(normal_fresnel_reflectance(float(material["bsdf"]["int_ior"]), float(material["bsdf"]["ext_ior"])))
 
 
 def render_albedo(material: dict, *, spp: int = 4096, resolution: int = 4, seed: int = 0,

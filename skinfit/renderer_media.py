@@ -53,6 +53,7 @@ import numpy as np
 import scipy.interpolate
 
 from ._validate import SkinfitInputError
+from .fresnel import normal_fresnel_reflectance
 from .layers import SKIN_IOR, Layer
 from .monte_carlo import monte_carlo_reflectance
 from .transport import stack_reflectance_transport
@@ -90,7 +91,7 @@ class RendererConventions(eqx.Module):
     @property
     def specular(self) -> float:
         """Normal-incidence reflectance F0 of the boundary, which the renderer adds on top."""
-        return ((self.ior - 1.0) / (self.ior + 1.0)) ** 2
+        return float(normal_fresnel_reflectance(self.ior))
 
     def describe(self) -> dict:
         return {

@@ -130,8 +130,8 @@ def renderer_profiles(
     dense = np.asarray(profile(params, lam, _DENSE_RADII, entry_fresnel=True, **model_options))
     dense_rgb = weights @ dense
     energy = cumulative_energy(_DENSE_RADII, dense_rgb) / albedo[:, None]
-    reach = [float(np.interp(energy_fraction, np.maximum.accumulate(e), _DENSE_RADII)) for e in energy]
-    max_radius = max(reach)
+    reach = _radii_holding(energy_fraction, energy)
+    max_radius = float(reach.max())
 
     radii = np.geomspace(max_radius * 1e-4, max_radius, n_radii)
     spectral = np.asarray(profile(params, lam, radii, entry_fresnel=True, **model_options))
@@ -145,10 +145,10 @@ def renderer_profiles(
     burley = {c: fit_burley(_DENSE_RADII[inside], dense_rgb[i, inside], albedo[i]) for i, c in enumerate(CHANNELS)}
     resolved = model_with_options(model_options.get("model"), ior=model_options.get("ior"))
     ior = float(np.mean(np.asarray(resolved.ior)))
-    median = np.array([float(np.interp(0.5, np.maximum.accumulate(e), _DENSE_RADII)) for e in energy])
+    median = _radii_holding(0.5, energy)
     medium = transport_medium(albedo, median, conventions)
     spectral_energy = cumulative_energy(_DENSE_RADII, dense) / reflectance[:, None]
-    spectral_median = np.array([float(np.interp(0.5, np.maximum.accumulate(e), _DENSE_RADII)) for e in spectral_energy])
+    spectral_median = _radii_holding(0.5, spectral_energy)
     spectral_medium = transport_medium(reflectance, spectral_median, conventions)
 
     metadata = {
@@ -171,6 +171,12 @@ def renderer_profiles(
     }
     return RendererProfiles(lam, radii, spectral * spectral_scale[:, None], rgb * rgb_scale[:, None], reflectance, albedo,
                             max_radius, captured, gaussians, burley, medium, spectral_medium, spectral_median, metadata)
+
+
+def _radii_holding(fraction: float, energy: np.ndarray) -> np.ndarray:
+    """Per row of ``energy`` (cumulative energy fractions on ``_DENSE_RADII``), the radius within
+    which it holds ``fraction`` (monotone envelope: far tails of linear-sRGB rows can dip)."""
+    return np.array([float(np.interp(fraction, np.maximum.accumulate(e), _DENSE_RADII)) for e in energy])
 
 
 def _energy_measure(radii):
