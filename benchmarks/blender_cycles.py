@@ -97,7 +97,7 @@ def _scene(job: dict, base_colour) -> None:
 def _screen(inner: float, outer: float, height: float, segments: int = 512) -> None:
     """A black ring over the slab with a hole of radius ``inner`` (metres; the inner polygon
     circumscribes the circle): by reciprocity the radiance seen through the hole's centre is the
-    diffuse reflectance within ``inner`` of a beam there (see skinfit.mitsuba)."""
+    diffuse reflectance within ``inner`` of a beam there (see skinfit.export)."""
     angle = np.linspace(0.0, 2 * np.pi, segments, endpoint=False)
     r_in = inner / np.cos(np.pi / segments)
     vertices = [(r_in * np.cos(a), r_in * np.sin(a), height) for a in angle] + [(outer * np.cos(a), outer * np.sin(a), height) for a in angle]

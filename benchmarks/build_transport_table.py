@@ -2,7 +2,7 @@
 
 Run: python -m benchmarks.build_transport_table [--nodes 129 97 41] [--points 1000] [--no-build]
 
-1. Build: ``skinfit.transport_table.build_transport_table(0.8, 1.4, streams=16)`` on the default
+1. Build: ``skinfit.model.build_transport_table(0.8, 1.4, streams=16)`` on the default
    nodes, written to spectra/transport_table_g0.80_n1.400.npz (the package's shipped table);
    ``--no-build`` measures the file that is there.
 2. Accuracy: the table's relative error at random points off the nodes, against
@@ -39,8 +39,8 @@ import numpy as np
 import skinfit  # noqa: F401 - float64
 from benchmarks._record import git_commit
 from benchmarks._timing import median_seconds
-from skinfit import transport_table as tt
-from skinfit.transport import stack_reflectance_transport
+from skinfit import model
+from skinfit.model import stack_reflectance_transport
 
 ROOT = Path(__file__).resolve().parents[1]
 SHIPPED = ROOT / "spectra" / "transport_table_g0.80_n1.400.npz"
@@ -63,8 +63,8 @@ def coordinates(stacks: np.ndarray) -> np.ndarray:
 
 def uniform(rng, n: int) -> np.ndarray:
     """(n, 3) points uniform in the log coordinates over the table's box."""
-    lo = np.log([tt.RATIO_RANGE[0], tt.THICKNESS_RANGE[0], tt.RATIO_RANGE[0]])
-    hi = np.log([tt.RATIO_RANGE[1], tt.THICKNESS_RANGE[1], tt.RATIO_RANGE[1]])
+    lo = np.log([model.RATIO_RANGE[0], model.THICKNESS_RANGE[0], model.RATIO_RANGE[0]])
+    hi = np.log([model.RATIO_RANGE[1], model.THICKNESS_RANGE[1], model.RATIO_RANGE[1]])
     return rng.uniform(lo, hi, (n, 3))
 
 
@@ -77,7 +77,7 @@ def table_at(table, x: np.ndarray) -> np.ndarray:
 def semi_infinite_epidermis(x1: np.ndarray) -> np.ndarray:
     """The saturated limit: the epidermis's material alone, semi-infinite."""
     x = np.stack([x1, np.zeros_like(x1), x1], -1)  # dermis = epidermis: the thickness drops out
-    return tt.node_reflectance(x, G, N, STREAMS, progress=False)
+    return model.node_reflectance(x, G, N, STREAMS, progress=False)
 
 
 def summary(error: np.ndarray, x: np.ndarray) -> dict:
@@ -99,15 +99,15 @@ def accuracy(table, points: int, seed: int = 7) -> dict:
     # skin-like: every point within the direct solver's reach (optical depth <= 120)
     stacks = skin_like(rng, points)
     x = coordinates(stacks)
-    direct = tt.node_reflectance(x, G, N, STREAMS, progress=False)
+    direct = model.node_reflectance(x, G, N, STREAMS, progress=False)
     got = np.asarray(table.reflectance(*(stacks[:, i] for i in range(5))))
     result["skin_like"] = summary(got / direct - 1.0, x)
 
     x = uniform(rng, points)
     got = table_at(table, x)
-    direct = tt.node_reflectance(x, G, N, STREAMS, progress=False)
+    direct = model.node_reflectance(x, G, N, STREAMS, progress=False)
     depth = (np.exp(x[:, 0]) + 1.0 / (1.0 - G)) * np.exp(x[:, 1])
-    saturated = x[:, 1] >= tt.saturation_thickness(x[:, 0], G)
+    saturated = x[:, 1] >= model.saturation_thickness(x[:, 0], G)
     limit = semi_infinite_epidermis(x[:, 0])
     reference = np.where(saturated, limit, direct)
     reach = depth <= DIRECT_DEPTH
@@ -159,7 +159,7 @@ def cost(table, batch: int = 64, direct_batch: int = 8) -> dict:
 
 def main(argv=None):
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument("--nodes", type=int, nargs=3, default=list(tt.DEFAULT_NODES), help="nodes along x1, x2, x3")
+    parser.add_argument("--nodes", type=int, nargs=3, default=list(model.DEFAULT_NODES), help="nodes along x1, x2, x3")
     parser.add_argument("--points", type=int, default=1000, help="random points per accuracy set")
     parser.add_argument("--table", default=str(SHIPPED), help="where to write (or, with --no-build, read) the table")
     parser.add_argument("--no-build", action="store_true", help="measure the table file that is there")
@@ -173,12 +173,12 @@ def main(argv=None):
         "anisotropy": G, "ior": N, "streams": STREAMS,
     }
     if args.no_build:
-        table = tt.load_table(args.table)
+        table = model.load_table(args.table)
     else:
         start = time.perf_counter()
-        table = tt.build_transport_table(G, N, streams=STREAMS, nodes=tuple(args.nodes))
+        table = model.build_transport_table(G, N, streams=STREAMS, nodes=tuple(args.nodes))
         result["build_s"] = time.perf_counter() - start
-        tt.save_table(table, args.table)
+        model.save_table(table, args.table)
     result["nodes"] = list(table.nodes)
     result["lower"], result["step"] = list(table.lower), list(table.step)
     result["file_bytes"] = Path(args.table).stat().st_size

@@ -9,7 +9,7 @@ included, 400-700 nm every 10 nm) and the NIST skin set (DOI 10.18434/M38597; in
 Measurement model of the ISSA spectra: specular included at 8 degrees (``oil`` free per spectrum),
 a triangular band-pass of 10 nm FWHM (spectrophotometers reporting every 10 nm), infinite port.
 Per spectrum: melanin, melanin blend, haemoglobin and oil. Shared: the constants of
-``skinfit.model_calibration.DEFAULT_CONSTANTS`` on exact (tabulated) transport with g = 0.8.
+``skinfit.fit.DEFAULT_CONSTANTS`` on exact (tabulated) transport with g = 0.8.
 
 Cross-validation: subjects (origin, subject) in ``--folds`` folds; each fold's spectra are fitted
 through ``skinfit.fit_spectra`` with constants calibrated without it. Writes
@@ -29,9 +29,8 @@ from pathlib import Path
 import numpy as np
 
 import skinfit
-from skinfit.measurements import FACE_SITES, read_issa, read_nist
-from skinfit.model_calibration import DEFAULT_CONSTANTS, calibrate_model, on_a_bound
-from skinfit.spectral_fit import FitStatus
+from skinfit.fit import DEFAULT_CONSTANTS, FitStatus, calibrate_model, on_a_bound
+from skinfit.io import FACE_SITES, read_issa, read_nist
 
 ROOT = Path(__file__).resolve().parents[1]
 RESULTS = ROOT / "benchmarks" / "results"
@@ -74,8 +73,8 @@ def start_model() -> skinfit.SkinModel:
     total = float(dj.epidermis_scattering.mie_mm + dj.epidermis_scattering.rayleigh_mm)
     return dj.replace(
         epidermis_thickness_mm=EPIDERMIS_THICKNESS_MM,
-        epidermis_scattering=skinfit.ScatteringLaw(scale * total, 1.0, 0.0),
-        dermis_scattering=skinfit.ScatteringLaw(0.5 * total, 1.0, 0.0),
+        epidermis_scattering=skinfit.model.ScatteringLaw(scale * total, 1.0, 0.0),
+        dermis_scattering=skinfit.model.ScatteringLaw(0.5 * total, 1.0, 0.0),
         surface_ior=SURFACE_IOR,
         method=skinfit.Transport.tabulated(),
     )

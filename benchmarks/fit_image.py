@@ -23,7 +23,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import platform
 import resource
 import subprocess
 import sys
@@ -31,15 +30,15 @@ import tempfile
 import time
 from pathlib import Path
 
-import jax
 import numpy as np
 import scipy.optimize
 
 import skinfit
+from benchmarks._record import provenance
 from benchmarks.forward_model import chromophore_table, numpy_reflectance
-from skinfit.colorimetry import linear_srgb_weights
-from skinfit.colour_table import COLOUR_WAVELENGTHS_NM
-from skinfit.image_fit import fit_pixels, render_maps
+from skinfit import render_maps
+from skinfit.colorimetry import COLOUR_WAVELENGTHS_NM, linear_srgb_weights
+from skinfit.fit import fit_pixels
 
 #: These timings compare skinfit with NumPy/SciPy ports of Donner & Jensen 2006's diffusion model, so
 #: they evaluate that model (the calibrated default is re-measured by benchmarks.fit_measured).
@@ -129,8 +128,7 @@ def main(argv=None):
         memory = peak_memory(rgb, args.memory_size)
 
     result = {
-        "date": time.strftime("%Y-%m-%d"),
-        "machine": f"{platform.machine()}, {platform.processor() or 'cpu'}, jax {jax.__version__} on {jax.default_backend()}",
+        **provenance(),
         "image": f"{args.size}x{args.size} smooth maps (issue round trip)",
         "first_call_s_incl_table_and_compile": first,
         **summary,
@@ -152,7 +150,7 @@ def main(argv=None):
 def peak_memory(rgb, size):
     """Peak resident memory (GiB) and time of ``skinfit fit-image`` on a size x size EXR tiled
     from ``rgb``, in a fresh process."""
-    from skinfit.images import write_exr
+    from skinfit.io import write_exr
 
     reps = -(-size // rgb.shape[0])
     big = np.tile(rgb, (reps, reps, 1))[:size, :size]

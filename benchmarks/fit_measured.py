@@ -23,8 +23,8 @@ from pathlib import Path
 import numpy as np
 
 import skinfit
-from skinfit.measurements import FACE_SITES, read_issa
-from skinfit.spectral_fit import FitStatus
+from skinfit.fit import FitStatus
+from skinfit.io import FACE_SITES, read_issa
 
 ROOT = Path(__file__).resolve().parents[1]
 WAVELENGTHS = np.arange(400.0, 701.0, 10.0)

@@ -11,12 +11,12 @@ from __future__ import annotations
 
 import argparse
 import json
-import time
 from pathlib import Path
 
 import numpy as np
 
 import skinfit
+from benchmarks._record import provenance
 from benchmarks.fit_spectra import box_spectra
 
 #: The saved noise results are for Donner & Jensen 2006's diffusion model (the calibrated default's fits of
@@ -36,7 +36,7 @@ def main(argv=None):
     wl, true, clean = box_spectra(args.n, rng)
     noisy = clean * (1 + args.noise * rng.standard_normal(clean.shape))
     fit = skinfit.fit_spectra(wl, noisy, model=MODEL, progress=False)
-    result = {"date": time.strftime("%Y-%m-%d"), "spectra": args.n, "noise": args.noise,
+    result = {**provenance(), "spectra": args.n, "noise": args.noise,
               "status_counts": {s.name: int(np.sum(fit.status == s)) for s in skinfit.FitStatus}}
     for i, key in enumerate(KEYS):
         err = fit.parameters[key] - true[:, i]

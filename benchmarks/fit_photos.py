@@ -24,7 +24,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import platform
 import resource
 import subprocess
 import sys
@@ -38,11 +37,10 @@ import numpy as np
 import scipy.optimize
 
 import skinfit
-from skinfit._spatial import speckle_fraction
-from skinfit.colorimetry import linear_srgb_weights
-from skinfit.colour_table import COLOUR_WAVELENGTHS_NM, params_rgb
-from skinfit.image_fit import PixelStatus, fit_image
-from skinfit.images import read_linear_rgb, read_mask
+from benchmarks._record import provenance
+from skinfit.colorimetry import COLOUR_WAVELENGTHS_NM, linear_srgb_weights, params_rgb
+from skinfit.fit import PixelStatus, fit_image, speckle_fraction
+from skinfit.io import read_linear_rgb, read_mask
 
 ROOT = Path(__file__).resolve().parents[1]
 INPUTS = {
@@ -105,7 +103,7 @@ def scipy_baseline(rgb, fit, n, seed=0) -> dict:
 def peak_memory(rgb, size) -> dict:
     """Peak resident memory (GiB) and wall time of ``skinfit fit-image`` (defaults) on a size x size
     EXR tiled from ``rgb``, in a fresh process."""
-    from skinfit.images import write_exr
+    from skinfit.io import write_exr
 
     reps = -(-size // min(rgb.shape[:2]))
     big = np.tile(rgb, (reps, reps, 1))[:size, :size]
@@ -151,8 +149,7 @@ def main(argv=None):
         memory = peak_memory(capture, args.memory_size)
         print(f"{args.memory_size}^2: {memory}")
     record = {
-        "date": time.strftime("%Y-%m-%d"),
-        "machine": f"{platform.machine()}, {platform.processor() or 'cpu'}, jax {jax.__version__} on {jax.default_backend()}",
+        **provenance(),
         "model": skinfit.SkinModel.default().name,
         "inputs": results,
         "peak_memory_default_settings": memory,

@@ -13,17 +13,16 @@ from __future__ import annotations
 
 import argparse
 import json
-import platform
 import time
 from pathlib import Path
 
-import jax
 import numpy as np
 import scipy.optimize
 
 import skinfit
+from benchmarks._record import provenance
 from benchmarks.forward_model import chromophore_table, numpy_reflectance
-from skinfit.spectral_fit import fit_spectra
+from skinfit.fit import fit_spectra
 
 #: These timings compare skinfit with NumPy/SciPy ports of Donner & Jensen 2006's diffusion model, so
 #: they evaluate that model (the calibrated default is re-measured by benchmarks.fit_measured).
@@ -75,8 +74,7 @@ def main(argv=None):
     scipy_err = np.array(scipy_err)
 
     result = {
-        "date": time.strftime("%Y-%m-%d"),
-        "machine": f"{platform.machine()}, jax {jax.__version__} on {jax.default_backend()}",
+        **provenance(),
         "spectra": args.n,
         "first_call_s_incl_compile": first,
         "skinfit_s": ours,

@@ -10,7 +10,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import platform
 import time
 from pathlib import Path
 
@@ -18,7 +17,8 @@ import jax
 import numpy as np
 
 import skinfit
-from skinfit.profiles import profile
+from benchmarks._record import provenance
+from skinfit.model import profile
 from tests import reference as ref
 
 #: These timings compare skinfit with NumPy/SciPy ports of Donner & Jensen 2006's diffusion model, so
@@ -38,7 +38,7 @@ def timed(fn, repeat=5):
 
 def chromophore_table(wl):
     """Chromophore spectra at ``wl`` as NumPy arrays, computed once for the NumPy baseline."""
-    from skinfit import chromophores as ch
+    from skinfit import model as ch
 
     names = ("baseline", "eumelanin", "pheomelanin", "oxyhaemoglobin", "deoxyhaemoglobin")
     table = {n: np.asarray(getattr(ch, f"{n}_absorption")(wl)) for n in names}
@@ -81,14 +81,13 @@ def main(argv=None):
     parser = argparse.ArgumentParser(description=__doc__)
     parser.add_argument("--out", default="benchmarks/results")
     args = parser.parse_args(argv)
-    results = {"machine": f"{platform.machine()}, {platform.processor() or 'cpu'}, jax {jax.__version__} on {jax.default_backend()}",
-               "date": time.strftime("%Y-%m-%d")}
+    results = provenance()
 
-    # 1. Accuracy of the closed form against image sums (MODEL.md 5.3 slab cases + skin epidermis)
+    # 1. Accuracy of the closed form against image sums (model notes 5.3 slab cases + skin epidermis)
     q = np.array([0.0, 1.0, 5.0, 20.0, 100.0])
     rows = []
     for d, sa, ss in [(0.25, 0.05, 5.0), (0.1, 0.01, 10.0), (0.01, 5.0, 500.0), (10.0, 0.01, 2.0)]:
-        exact = skinfit.slab_response(sa, ss, d, 1.4, 1.0, q)
+        exact = skinfit.model.slab_response(sa, ss, d, 1.4, 1.0, q)
         row = {"slab": f"d={d} mm, sa={sa}, ss'={ss}"}
         for n in (0, 5, 50, 2000):
             r, t = ref.image_sum_transfer(sa, ss, d, 1.4, 1.0, q, n=n)
@@ -108,8 +107,8 @@ def main(argv=None):
     jax.block_until_ready(fn(light))
     compile_s = time.perf_counter() - start
     table_s = timed(lambda: fn(light))
-    layers = skinfit.skin_layers(light, wl, model=MODEL)
-    transfer = jax.jit(lambda qq: skinfit.stack_transfer([jax.tree_util.tree_map(lambda a: a[..., None, None], layer) for layer in layers], qq))
+    layers = skinfit.model.skin_layers(light, wl, model=MODEL)
+    transfer = jax.jit(lambda qq: skinfit.model.stack_transfer([jax.tree_util.tree_map(lambda a: a[..., None, None], layer) for layer in layers], qq))
     freq = 2 * np.pi * np.fft.fftfreq(2048, 0.02)
     qgrid = np.sqrt(freq[:, None] ** 2 + freq[None, :] ** 2)
     transfer(qgrid)
@@ -123,7 +122,7 @@ def main(argv=None):
     fft_s = time.perf_counter() - start
     fine = np.geomspace(1e-5, 200.0, 4000)
     energy = np.trapezoid(2 * np.pi * fine**2 * np.asarray(profile(light, wl, fine, model=MODEL)), np.log(fine), axis=-1)
-    r12 = np.asarray(skinfit.stack_transfer(layers, 0.0))
+    r12 = np.asarray(skinfit.model.stack_transfer(layers, 0.0))
     results["profile_table"] = {"shape": [61, 256], "compile_s": compile_s, "time_s": table_s,
                                 "fft_baseline_s": fft_s, "speedup_vs_fft": fft_s / table_s,
                                 "max_energy_error": float(np.max(np.abs(energy / r12 - 1)))}

@@ -9,7 +9,7 @@ script renders the reference slab of ``benchmarks/blender_cycles.py`` for 60 bas
 0.002 to 0.95 (three per render, one per channel; Cycles' channels are independent, checked by
 two renders that share a channel) at ``--spp`` samples, and writes the curve, rendered diffuse
 albedo against base colour with its standard error, to spectra/blender_cycles_<method>.json,
-which ``skinfit.renderers.blender_principled`` inverts. The rendered albedo of a semi-infinite
+which ``skinfit.export.blender_principled`` inverts. The rendered albedo of a semi-infinite
 slab is independent of the radius (checked here at 1 and 10 mm); below ~0.1 mm x 0.001 scene
 units Cycles falls back to a diffuse surface, which this curve does not describe.
 """

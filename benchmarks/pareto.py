@@ -41,9 +41,9 @@ import scipy.optimize
 
 import skinfit
 from skinfit.colorimetry import delta_e2000, linear_srgb_to_lab, linear_srgb_weights
-from skinfit.hankel import HankelQuadrature
+from skinfit.fit import SolverSettings
+from skinfit.model import HankelQuadrature
 from skinfit.planning import plan, rgb_wavelengths
-from skinfit.spectral_fit import SolverSettings
 
 #: These timings compare skinfit with NumPy/SciPy ports of Donner & Jensen 2006's diffusion model, so
 #: they evaluate that model (the calibrated default is re-measured by benchmarks.fit_measured).
@@ -100,10 +100,10 @@ def profile_sweep(repeats: int) -> list[Point]:
     count = len(skinfit.PRESET_NAMES) * wl.size
 
     # baseline: the 2-D FFT recipe per profile (N 2048, dx 0.02 mm), two profiles timed
-    layers = skinfit.skin_layers(skinfit.preset("light"), wl[:2], model=MODEL)
+    layers = skinfit.model.skin_layers(skinfit.preset("light"), wl[:2], model=MODEL)
     freq = 2 * np.pi * np.fft.fftfreq(2048, 0.02)
     qgrid = np.sqrt(freq[:, None] ** 2 + freq[None, :] ** 2)
-    transfer = jax.jit(lambda q: skinfit.stack_transfer([jax.tree_util.tree_map(lambda a: a[..., None, None], layer) for layer in layers], q))
+    transfer = jax.jit(lambda q: skinfit.model.stack_transfer([jax.tree_util.tree_map(lambda a: a[..., None, None], layer) for layer in layers], q))
     transfer(qgrid)
     start = time.perf_counter()
     for grid in np.asarray(transfer(qgrid)):
@@ -214,7 +214,7 @@ def spectral_fit_sweep(repeats: int) -> list[Point]:
 def image_fit_sweep(repeats: int, size: int = 256) -> list[Point]:
     from benchmarks.fit_image import smooth_maps
     from benchmarks.forward_model import chromophore_table, numpy_reflectance
-    from skinfit.colour_table import COLOUR_WAVELENGTHS_NM, colour_table
+    from skinfit.colorimetry import COLOUR_WAVELENGTHS_NM, colour_table
 
     melanin, haemoglobin, shading = smooth_maps(size)
     pixels = skinfit.render_maps(melanin, haemoglobin, shading, model=MODEL).reshape(-1, 3)
@@ -240,7 +240,7 @@ def image_fit_sweep(repeats: int, size: int = 256) -> list[Point]:
     ]
     points = []
     for label, options, default in settings:
-        maps, seconds, first = measure(lambda: skinfit.fit_pixels(pixels, progress=False, model=MODEL, **options), repeats)
+        maps, seconds, first = measure(lambda: skinfit.fit.fit_pixels(pixels, progress=False, model=MODEL, **options), repeats)
         error = np.max(np.abs(np.column_stack([maps["melanin"].ravel(), maps["haemoglobin"].ravel()]) - truth), axis=1)
         points.append(Point("image_fit", label, seconds, first, float(np.percentile(error, 99)), "p99 of max |C_m, C_h error|",
                             default, baseline, f"{size}x{size} round trip, {np.mean(maps['status'] == 0):.1%} SUCCESS"))

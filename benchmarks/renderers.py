@@ -5,7 +5,7 @@ Run: python -m benchmarks.renderers [--blender-python PYTHON_WITH_BPY] [--random
 For the calibrated default model and DJ2006, the three presets and ``--random`` parameter sets
 (C_m log-uniform 0.002-0.5, beta_m uniform, C_h log-uniform 0.002-0.2, seed 2026):
 
-- **Mitsuba 3** (``scalar_rgb``, ``volpathmis``, the reference slab of ``skinfit.mitsuba``): the
+- **Mitsuba 3** (``scalar_rgb``, ``volpathmis``, the reference slab of ``skinfit.export``): the
   exported per-channel medium (exact transport) against the model's linear-sRGB albedo, with the
   render's standard error; beside it, in the same run, the medium matched through diffusion
   theory (the classical dipole of a semi-infinite medium, which earlier exports used), which a
@@ -35,11 +35,9 @@ import numpy as np
 
 import skinfit
 from benchmarks._record import provenance
-from skinfit import mitsuba as sm
-from skinfit import renderers as rd
+from skinfit import export
 from skinfit.colorimetry import delta_e2000, linear_srgb_to_lab, linear_srgb_weights
-from skinfit.monte_carlo import monte_carlo_reflectance
-from skinfit.multipole import dipole_energy
+from skinfit.model import dipole_energy, monte_carlo_reflectance
 
 ROOT = Path(__file__).resolve().parents[1]
 RADII_MM = (0.1, 0.5, 1.0, 2.0)
@@ -66,7 +64,7 @@ def diffusion_matched_albedo(albedo: np.ndarray, ior: float = 1.4) -> np.ndarray
 
 def _render(material, spp):
     start = time.perf_counter()
-    rendered, error = sm.render_albedo(material, spp=spp)
+    rendered, error = export.render_albedo(material, spp=spp)
     return rendered, error, time.perf_counter() - start
 
 
@@ -78,13 +76,13 @@ def mitsuba_rgb(sets: dict, model, spp_presets: int, spp_random: int) -> dict:
     out = {}
     for name, params in sets.items():
         start = time.perf_counter()
-        result = rd.renderer_profiles(params, model=model)
+        result = export.renderer_profiles(params, model=model)
         export_s = time.perf_counter() - start
         spp = spp_presets if name in skinfit.PRESET_NAMES else spp_random
-        rendered, error, render_s = _render(sm.mitsuba_material(sm.mitsuba_medium(result.medium), 1.4), spp)
+        rendered, error, render_s = _render(export.mitsuba_material(export.mitsuba_medium(result.medium), 1.4), spp)
         old = result.medium.__class__(result.medium.conventions, result.rgb_albedo, result.medium.median_radius_mm,
                                       diffusion_matched_albedo(result.rgb_albedo), result.medium.extinction_per_mm)
-        old_rendered, old_error, _ = _render(sm.mitsuba_material(sm.mitsuba_medium(old), 1.4), spp)
+        old_rendered, old_error, _ = _render(export.mitsuba_material(export.mitsuba_medium(old), 1.4), spp)
         out[name] = {
             "params": {f: float(getattr(params, f)) for f in ("melanin", "melanin_blend", "haemoglobin")},
             "target": result.rgb_albedo.tolist(), "rendered": rendered.tolist(), "error": error.tolist(),
@@ -100,10 +98,10 @@ def mitsuba_rgb(sets: dict, model, spp_presets: int, spp_random: int) -> dict:
 
 def mitsuba_spectral(model, spp: int) -> dict:
     wavelengths = np.arange(360.0, 831.0, 10.0)
-    result = rd.renderer_profiles(skinfit.preset("medium"), wavelengths, model=model)
-    material = sm.mitsuba_material(sm.mitsuba_spectral_medium(wavelengths, result.spectral_medium), 1.4)
+    result = export.renderer_profiles(skinfit.preset("medium"), wavelengths, model=model)
+    material = export.mitsuba_material(export.mitsuba_spectral_medium(wavelengths, result.spectral_medium), 1.4)
     checked = np.array(SPECTRAL_CHECK_NM)
-    rendered, error = sm.render_spectral_albedo(material, checked, spp=spp)
+    rendered, error = export.render_spectral_albedo(material, checked, spp=spp)
     target = np.interp(checked, wavelengths, result.reflectance)
     return {"wavelengths_nm": checked.tolist(), "target": target.tolist(), "rendered": rendered.tolist(), "error": error.tolist(),
             "ratio": (rendered / target).tolist(), "spp": spp}
@@ -113,17 +111,17 @@ def radial(model, spp: int, photons: int) -> dict:
     out = {}
     radii = np.array(RADII_MM)
     for name in skinfit.PRESET_NAMES:
-        result = rd.renderer_profiles(skinfit.preset(name), model=model)
+        result = export.renderer_profiles(skinfit.preset(name), model=model)
         lam = result.wavelengths_nm
-        captured = np.stack([np.asarray(skinfit.captured_reflectance(skinfit.preset(name), lam, r, model=model)) for r in radii])
+        captured = np.stack([np.asarray(skinfit.model.captured_reflectance(skinfit.preset(name), lam, r, model=model)) for r in radii])
         model_fraction = (captured @ linear_srgb_weights(lam).T) / result.rgb_albedo
-        material = sm.mitsuba_material(sm.mitsuba_medium(result.medium), 1.4)
-        total, total_error = sm.render_albedo(material, spp=spp)
-        within, within_error = sm.render_energy_within(material, radii, spp=spp)
+        material = export.mitsuba_material(export.mitsuba_medium(result.medium), 1.4)
+        total, total_error = export.render_albedo(material, spp=spp)
+        within, within_error = export.render_energy_within(material, radii, spp=spp)
         m = result.medium
         mc = []
         for i in range(3):
-            layer = skinfit.Layer(absorption=float(m.absorption_per_mm[i]), reduced_scattering=float(m.reduced_scattering_per_mm[i]),
+            layer = skinfit.model.Layer(absorption=float(m.absorption_per_mm[i]), reduced_scattering=float(m.reduced_scattering_per_mm[i]),
                                   thickness=float("inf"), ior=1.4)
             run = monte_carlo_reflectance([layer], photons=photons, seed=i, radii_mm=radii)
             mc.append(run.reflectance_within / run.reflectance)
@@ -137,8 +135,8 @@ def radial(model, spp: int, photons: int) -> dict:
 def _blender_jobs(sets: dict, spp: int):
     jobs, names, radial_jobs = [], [], []
     for name, params in sets.items():
-        result = rd.renderer_profiles(params)
-        principled = rd.blender_principled(result)
+        result = export.renderer_profiles(params)
+        principled = export.blender_principled(result)
         common = {"radius_mm": principled["Subsurface Radius"], "spp": spp, "method": principled["subsurface_method"], "ior": 1.4}
         jobs += [{**common, "base_colour": principled["Base Color"][:3], "target": result.rgb_albedo.tolist()},
                  {**common, "base_colour": result.rgb_albedo.tolist(), "target": result.rgb_albedo.tolist()}]

@@ -23,7 +23,7 @@ its edges: melanin, blend, haemoglobin and blood oxygenation in [0, 1] (10 % of 
 Where physics, not numerics, is at stake (monotonicity, |R12(q)| <= R12(0), non-negative
 profiles), a violation counts inside the diffusion model's validity domain: the epidermis at
 least one transport mean free path thick at that wavelength, sigma_t' d >= 1, which is the
-multipole's own condition l = 1/sigma_t' <= d (MODEL.md 5.2); for profiles also
+multipole's own condition l = 1/sigma_t' <= d (model notes 5.2); for profiles also
 d >= ``PROFILE_MIN_EPIDERMIS_MM``, below which the default Hankel quadrature (q up to 200 mm^-1)
 does not resolve the response. Outside, the same failures are counted and reported as
 ``outside_validity_*``: they are the diffusion approximation's (an optically thin slab in
@@ -47,9 +47,13 @@ import jax.numpy as jnp
 import numpy as np
 
 import skinfit
-from skinfit.hankel import HankelQuadrature, inverse_kernel
-from skinfit.profiles import skin_profile
-from skinfit.reflectance import skin_reflectance, stack_transfer
+from skinfit.model import (
+    HankelQuadrature,
+    inverse_kernel,
+    skin_profile,
+    skin_reflectance,
+    stack_transfer,
+)
 
 #: The sweep stresses the DJ2006 diffusion model (its validity domain is the multipole's).
 MODEL = skinfit.SkinModel.dj2006()
@@ -81,7 +85,7 @@ def draw_wavelengths(rng: np.random.Generator, count: int = WAVELENGTHS_PER_CHUN
 
 def epidermis_optical_thickness(fields: dict, lam: np.ndarray) -> np.ndarray:
     """sigma_t' d of the epidermis, (n, n_wavelengths): the diffusion model needs it >= 1."""
-    from skinfit import chromophores as ch
+    from skinfit import model as ch
 
     lam = np.asarray(lam, dtype=float)
     blend = np.asarray(fields["melanin_blend"], dtype=float)[:, None]
@@ -170,7 +174,7 @@ def check_profiles(fields: dict, lam: np.ndarray, radii: np.ndarray, dtype) -> d
 
     A negative profile inside the validity domain is checked again in float64 with
     ``FINE_QUADRATURE``: if it stays negative there it is the model's own (DJ2005's flux-only
-    exitance gives a thin epidermis over a dark dermis a slightly negative tail, MODEL.md 6) and is
+    exitance gives a thin epidermis over a dark dermis a slightly negative tail, model notes 6) and is
     reported as ``profile_negative_model``; if it does not, the quadrature is at fault and it counts
     as a violation (``profile_negative``).
     """
@@ -252,7 +256,7 @@ def check_solvers(rng: np.random.Generator, n_spectra: int = 180, n_pixels: int 
     pixels = rng.uniform(-0.1, 1.2, (n_pixels, 3)) ** rng.choice([1.0, 3.0], (n_pixels, 1))
     pixels[rng.uniform(size=n_pixels) < 0.02, 0] = np.nan
     pixels[rng.uniform(size=n_pixels) < 0.02, 1] = np.inf
-    maps = skinfit.fit_pixels(pixels, progress=False)
+    maps = skinfit.fit.fit_pixels(pixels, progress=False)
     pixel_bad = sum(int(np.sum(~np.isfinite(v))) for k, v in maps.items() if k != "status")
     pixel_status = int(np.sum(~np.isin(maps["status"], [s.value for s in skinfit.PixelStatus])))
     return {

@@ -14,7 +14,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import platform
 import time
 from pathlib import Path
 
@@ -23,8 +22,9 @@ import jax.numpy as jnp
 import numpy as np
 
 import skinfit
+from benchmarks._record import provenance
 from benchmarks._timing import median_seconds
-from skinfit.measurements import read_nist
+from skinfit.io import read_nist
 
 KEYS = ("melanin", "melanin_blend", "haemoglobin")
 WAVELENGTHS = np.arange(400.0, 701.0, 10.0)
@@ -131,8 +131,7 @@ def main(argv=None):
     args = parser.parse_args(argv)
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
-    result = {"machine": f"{platform.processor() or platform.machine()}, {jax.devices()[0].device_kind}",
-              "date": time.strftime("%Y-%m-%d"), "cost": cost(args.batch)}
+    result = {**provenance(), "device": jax.devices()[0].device_kind, "cost": cost(args.batch)}
     print(json.dumps(result["cost"], indent=1), flush=True)
     result["nist"], rows = nist_fits(args.n)
     import matplotlib.pyplot as plt

@@ -27,10 +27,10 @@ import matplotlib.pyplot as plt
 import numpy as np
 
 import skinfit
-from skinfit import chromophores as chrom
+from skinfit import model as chrom
 from skinfit.colorimetry import linear_srgb_weights, spectrum_to_srgb
-from skinfit.measurements import read_nist
-from skinfit.profiles import profile
+from skinfit.io import read_nist
+from skinfit.model import profile
 
 HERE = Path.cwd() if "__file__" not in globals() else Path(__file__).resolve().parent
 DATA = HERE.parent / "data"
@@ -92,7 +92,7 @@ fig.tight_layout()
 # ## Directional against symmetric adding
 # The top face borders air, the bottom face tissue: light returning from the dermis sees a very
 # different epidermis (R1⁻ ≫ R1⁺). The symmetric form of DJ2005/pbrt-v2-skin ignores this and is
-# 12-20 % too bright for light skin against Monte Carlo (MODEL.md 5.5).
+# 12-20 % too bright for light skin against Monte Carlo (model notes 5.5).
 
 # %%
 light = skinfit.preset("light")
@@ -100,7 +100,7 @@ directional = np.asarray(skinfit.diffuse_reflectance(light, wl, model=DJ2006))
 symmetric = np.asarray(skinfit.diffuse_reflectance(light, wl, model=DJ2006, adding="symmetric"))
 print("light skin, symmetric / directional - 1 at 450/550/650 nm:",
       np.round((symmetric / directional - 1)[[10, 30, 50]], 3))
-# The MODEL.md 5.4 fixture, times the entry transmittance 1 - F0:
+# The model notes 5.4 fixture, times the entry transmittance 1 - F0:
 fixture = (1 - 1 / 36) * np.array([0.3553, 0.3893, 0.5209])
 assert np.allclose(directional[[10, 30, 50]], fixture, atol=1e-4)
 
@@ -126,7 +126,7 @@ fig.tight_layout()
 values = np.asarray(profile(light, wl, np.geomspace(1e-5, 200, 4000), model=DJ2006))
 rr = np.geomspace(1e-5, 200, 4000)
 energy = np.trapezoid(2 * np.pi * rr**2 * values, np.log(rr), axis=-1)
-r12 = np.asarray(skinfit.stack_transfer(skinfit.skin_layers(light, wl, model=DJ2006), 0.0))
+r12 = np.asarray(skinfit.model.stack_transfer(skinfit.model.skin_layers(light, wl, model=DJ2006), 0.0))
 print(f"max |energy / R12(0) - 1| over 61 wavelengths: {np.max(np.abs(energy / r12 - 1)):.1e}")
 assert np.max(np.abs(energy / r12 - 1)) < 1e-6
 

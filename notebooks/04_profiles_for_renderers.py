@@ -25,12 +25,12 @@ import matplotlib.pyplot as plt
 import numpy as np
 
 import skinfit
-from skinfit import renderers
+from skinfit import export
 
 results = {name: skinfit.renderer_profiles(skinfit.preset(name), label=name) for name in skinfit.PRESET_NAMES}
 rows = []
 for name, r in results.items():
-    for i, c in enumerate(renderers.CHANNELS):
+    for i, c in enumerate(export.CHANNELS):
         g, b = r.gaussians[c], r.burley[c]
         rows.append(f"{name:6s} {c:5s} albedo {r.rgb_albedo[i]:.4f}  Gaussians {100 * g['energy_error']:5.2f} % "
                     f"(L1 {100 * g['density_l1_error']:5.2f} %)  Burley d {b['shape_mm']:.3f} mm {100 * b['energy_error']:5.1f} % "
@@ -47,11 +47,11 @@ fig, axes = plt.subplots(1, 3, figsize=(14, 4), sharey=False)
 colours = ("tab:red", "tab:green", "tab:blue")
 for ax, (name, r) in zip(axes, results.items()):
     radii = r.radii_mm
-    for i, c in enumerate(renderers.CHANNELS):
+    for i, c in enumerate(export.CHANNELS):
         g, b = r.gaussians[c], r.burley[c]
         ax.plot(radii, radii * r.rgb[i] / r.metadata["rgb_scale"][i], color=colours[i], lw=2, label=f"{c} model" if name == "light" else None)
-        ax.plot(radii, radii * renderers.gaussian_sum(radii, g["variances_mm2"], g["weights"]), color=colours[i], ls="--", lw=1)
-        ax.plot(radii, radii * renderers.burley_profile(radii, b["albedo"], b["shape_mm"]), color=colours[i], ls=":", lw=1)
+        ax.plot(radii, radii * export.gaussian_sum(radii, g["variances_mm2"], g["weights"]), color=colours[i], ls="--", lw=1)
+        ax.plot(radii, radii * export.burley_profile(radii, b["albedo"], b["shape_mm"]), color=colours[i], ls=":", lw=1)
     ax.set_xscale("log")
     ax.set_xlabel("r (mm)")
     ax.set_title(f"{name}: model (solid), 6 Gaussians (dashed), Burley (dotted)", fontsize=9)
@@ -84,22 +84,21 @@ print(results["light"].medium.conventions.describe())
 # photon-beam-diffusion BSSRDF, an approximation of the exact transport it was matched with.
 
 # %%
-print(renderers.pbrt_v4_material(results["light"], name="skin_light"))
+print(export.pbrt_v4_material(results["light"], name="skin_light"))
 
 # %% [markdown]
 # ## Mitsuba 3
 #
-# `skinfit profiles --format mitsuba` (or `mitsuba-spectral`) writes this XML; `skinfit.mitsuba`
+# `skinfit profiles --format mitsuba` (or `mitsuba-spectral`) writes this XML; `skinfit.export`
 # has the same as dictionaries for `mitsuba.load_dict`, and renders that check them. Here the
 # medium preset in the reference slab (white environment, normal view, specular subtracted),
-# with few samples: the test suite and `benchmarks/renderers.py` render with many more.
+# with few samples: the test suite and `benchmarks/export.py` render with many more.
 
 # %%
-from skinfit import mitsuba as sm  # noqa: E402
 
-print(renderers.mitsuba_export(results["medium"]))
-material = sm.mitsuba_material(sm.mitsuba_medium(results["medium"].medium), 1.4)
-rendered, error = sm.render_albedo(material, spp=2048)
+print(export.mitsuba_export(results["medium"]))
+material = export.mitsuba_material(export.mitsuba_medium(results["medium"].medium), 1.4)
+rendered, error = export.render_albedo(material, spp=2048)
 print("Mitsuba / model:", np.round(rendered / results["medium"].rgb_albedo, 4), "+-", np.round(error / results["medium"].rgb_albedo, 4))
 assert np.all(np.abs(rendered / results["medium"].rgb_albedo - 1) < np.maximum(0.02, 3 * error / results["medium"].rgb_albedo))
 
@@ -114,5 +113,5 @@ assert np.all(np.abs(rendered / results["medium"].rgb_albedo - 1) < np.maximum(0
 
 # %%
 for name, r in results.items():
-    values = renderers.blender_principled(r)
+    values = export.blender_principled(r)
     print(name, {k: (np.round(v, 4).tolist() if isinstance(v, list) else v) for k, v in values.items() if k != "note"})

@@ -29,7 +29,7 @@ import matplotlib.pyplot as plt
 import numpy as np
 
 import skinfit
-from skinfit.model_calibration import prior_table
+from skinfit.fit import prior_table
 
 HERE = Path.cwd() if "__file__" not in globals() else Path(__file__).resolve().parent
 ROOT = HERE.parent
@@ -158,7 +158,7 @@ for label in ("dj2006", "calibrated"):
 data = ROOT.parent / "shared" / "data" / "issa-subset" / "issa_subset.csv"
 if data.exists():
     archive = skinfit.read_issa(data)
-    face = archive.select([r["body_site"] in skinfit.measurements.FACE_SITES for r in archive.records]).complete(wl)
+    face = archive.select([r["body_site"] in skinfit.io.FACE_SITES for r in archive.records]).complete(wl)
     pick = np.random.default_rng(0).choice(len(face.reflectance), 6, replace=False)
     fit = skinfit.fit_spectra(wl, face.reflectance[pick], specular_included_deg=8.0, bandwidth_nm=10.0, progress=False)
     old = skinfit.fit_spectra(wl, face.reflectance[pick], model=dj, specular_included_deg=8.0, bandwidth_nm=10.0, progress=False)

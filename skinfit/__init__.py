@@ -1,7 +1,15 @@
 """skinfit: the Donner & Jensen 2006 spectral two-layer skin model in JAX, differentiable and fast.
 
-Data flow: parameters -> optical coefficients -> layer responses -> adding -> reflectance / profiles
--> colour -> fit. Units: lengths mm, coefficients mm^-1, wavelengths nm.
+Data flow, one subpackage per stage, each importing only the ones before it:
+
+    model -> colorimetry -> io -> planning -> export -> fit -> cli
+
+``skinfit.model`` (parameters, optics, multipole, adding, profiles, transport), ``skinfit.colorimetry``
+(CIE colour, CIEDE2000, the colour spline), ``skinfit.io`` (images, measured spectra),
+``skinfit.planning`` (compute only what a request needs), ``skinfit.export`` (profile tables, renderer
+formats), ``skinfit.fit`` (spectra, images, model calibration) and ``skinfit.cli``. The names below are
+what a user calls; everything else lives in its subpackage, and ``skinfit.internal`` gathers the
+machinery the benchmarks use. Units: lengths mm, coefficients mm^-1, wavelengths nm.
 
 Importing skinfit enables JAX float64 (``jax_enable_x64``): the model runs in float64 unless its
 inputs are float32.
@@ -11,114 +19,81 @@ import jax as _jax
 
 _jax.config.update("jax_enable_x64", True)
 
-__version__ = "0.1.0"
-
+# the imports follow the stages, lowest first
+from . import _deprecated  # noqa: E402
 from ._validate import SkinfitInputError  # noqa: E402
-from .adding import stack_reflectance  # noqa: E402
-from .colorimetry import (  # noqa: E402
-    linear_srgb_weights,
-    spectrum_to_linear_srgb,
-    spectrum_to_srgb,
-    spectrum_to_xyz,
-    srgb_decode,
-    srgb_encode,
-    xyz_to_linear_srgb,
-    xyz_weights,
+from ._version import __version__  # noqa: E402, F401
+from .model import (  # noqa: E402
+    PRESET_NAMES,
+    Diffusion,
+    Layer,
+    SkinModel,
+    SkinParams,
+    Transport,
+    diffuse_reflectance,
+    layered_reflectance,
+    preset,
+    profile,
 )
-from .spectral_fit import FitStatus, SolverSettings, SpectralFit, fit_spectra  # noqa: E402
-from .hankel import HankelQuadrature  # noqa: E402
-from .calibration import ImageCalibration, calibrate  # noqa: E402
-from .colour_chart import ChartCalibration, chart_calibration  # noqa: E402
-from .colour_table import ColourTable, colour_table  # noqa: E402
-from .image_fit import ImageFit, PixelStatus, fit_image, fit_pixels, render_maps  # noqa: E402
-from .images import read_linear_rgb, read_mask  # noqa: E402
-from .layers import Layer  # noqa: E402
-from .skin_model import Diffusion, PopulationPrior, ScatteringLaw, SkinModel, Transport, skin_layers  # noqa: E402
-from .measurements import ArchiveSpectra, NistSpectra, read_issa, read_nist  # noqa: E402
-from .model_calibration import ModelCalibration, calibrate_model  # noqa: E402
-from .monte_carlo import MonteCarloResult, monte_carlo_reflectance  # noqa: E402
-from .multipole import SlabResponse, slab_response  # noqa: E402
-from .params import PRESET_NAMES, SkinParams, preset, preset_source  # noqa: E402
-from .planning import Plan, Request, plan  # noqa: E402
-from .profiles import captured_reflectance, layered_profile, profile  # noqa: E402
-from .reflectance import diffuse_reflectance, layered_reflectance, stack_transfer  # noqa: E402
-from .renderer_media import RendererConventions, RendererMedium, transport_medium  # noqa: E402
-from .renderers import RendererProfiles, renderer_profiles, renderer_textures, write_renderer  # noqa: E402
-from .surface import brdf, lobe_albedo, reflectance_factor, surface_energy  # noqa: E402
-from .tables import ProfileTable, profile_table, read_exr_table, write_table  # noqa: E402
+from .colorimetry import render_maps, spectrum_to_srgb  # noqa: E402
+from .io import read_issa, read_nist  # noqa: E402
+from .planning import Request, plan  # noqa: E402
+from .export import profile_table, renderer_profiles, write_renderer  # noqa: E402
+from .fit import (  # noqa: E402
+    FitStatus,
+    ImageFit,
+    ModelCalibration,
+    PixelStatus,
+    SpectralFit,
+    calibrate_model,
+    fit_image,
+    fit_spectra,
+)
+from . import cli, colorimetry, export, fit, io, model, planning  # noqa: E402, F401 - the stages, as attributes
+
+_deprecated.install_finder()
 
 __all__ = [
-    "ArchiveSpectra",
-    "ModelCalibration",
-    "calibrate_model",
-    "read_issa",
-    "Diffusion",
-    "PopulationPrior",
-    "ScatteringLaw",
+    # parameters and the model
+    "SkinParams",
+    "preset",
+    "PRESET_NAMES",
     "SkinModel",
+    "Diffusion",
     "Transport",
-    "FitStatus",
-    "SolverSettings",
-    "SpectralFit",
-    "brdf",
-    "captured_reflectance",
+    # forward model
+    "diffuse_reflectance",
+    "Layer",
+    "layered_reflectance",
+    "profile",
+    "spectrum_to_srgb",
+    "render_maps",
+    "plan",
+    "Request",
+    # fits and their results
     "fit_spectra",
-    "HankelQuadrature",
-    "ColourTable",
-    "ImageCalibration",
-    "ChartCalibration",
-    "chart_calibration",
+    "SpectralFit",
+    "FitStatus",
+    "fit_image",
     "ImageFit",
     "PixelStatus",
-    "calibrate",
-    "colour_table",
-    "fit_image",
-    "fit_pixels",
-    "read_linear_rgb",
-    "read_mask",
-    "render_maps",
-    "Layer",
-    "MonteCarloResult",
-    "monte_carlo_reflectance",
-    "NistSpectra",
-    "PRESET_NAMES",
-    "Plan",
-    "Request",
-    "ProfileTable",
-    "SkinParams",
-    "SkinfitInputError",
-    "SlabResponse",
-    "diffuse_reflectance",
-    "layered_profile",
-    "layered_reflectance",
-    "lobe_albedo",
-    "linear_srgb_weights",
-    "plan",
-    "preset",
-    "preset_source",
-    "profile",
-    "profile_table",
-    "read_exr_table",
+    "calibrate_model",
+    "ModelCalibration",
+    # data and exports
     "read_nist",
-    "RendererProfiles",
+    "read_issa",
+    "profile_table",
     "renderer_profiles",
-    "renderer_textures",
-    "RendererConventions",
-    "RendererMedium",
-    "transport_medium",
-    "reflectance_factor",
-    "skin_layers",
-    "slab_response",
-    "spectrum_to_linear_srgb",
-    "spectrum_to_srgb",
-    "spectrum_to_xyz",
-    "srgb_decode",
-    "srgb_encode",
-    "stack_reflectance",
-    "stack_transfer",
-    "surface_energy",
     "write_renderer",
-    "write_table",
-    "xyz_to_linear_srgb",
-    "xyz_weights",
+    # errors
+    "SkinfitInputError",
 ]
+
+
+def __getattr__(name: str):
+    # the 0.1 names and flat modules, for one release (skinfit._deprecated)
+    return _deprecated.moved_attribute(name)
+
+
+def __dir__():
+    return sorted(set(globals()) | set(__all__))

@@ -4,7 +4,7 @@ import pytest
 
 import skinfit  # noqa: F401 - enables float64 before any test builds arrays
 
-#: Light-skin fixture of MODEL.md 5.4 (C_m 0.005, beta_m 0.7, C_h 0.005) at 450, 550, 650 nm.
+#: Light-skin fixture of model notes 5.4 (C_m 0.005, beta_m 0.7, C_h 0.005) at 450, 550, 650 nm.
 LIGHT_FIXTURE = {
     "wavelengths_nm": np.array([450.0, 550.0, 650.0]),
     "R1_top": np.array([0.3029, 0.2521, 0.2090]),
@@ -36,7 +36,7 @@ def light():
     return skinfit.preset("light")
 
 
-#: Donner & Jensen 2006 (diffusion): the model of the published fixtures (MODEL.md).
+#: Donner & Jensen 2006 (diffusion): the model of the published fixtures (model notes).
 DJ2006 = skinfit.SkinModel.dj2006()
 
 

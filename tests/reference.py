@@ -1,9 +1,9 @@
-"""Independent reference implementations for the tests (NumPy, written from MODEL.md, not from skinfit).
+"""Independent reference implementations for the tests (NumPy, written from model notes, not from skinfit).
 
-* ``image_sum_profiles``: the DJ2005 real-space multipole (MODEL.md 5.1) with many dipole pairs.
-* ``image_sum_transfer``: the same image series in q-space, term by term (MODEL.md 5.2).
+* ``image_sum_profiles``: the DJ2005 real-space multipole (model notes 5.1) with many dipole pairs.
+* ``image_sum_transfer``: the same image series in q-space, term by term (model notes 5.2).
 * ``forward_hankel``: 2 pi int f(r) J0(q r) r dr by composite Gauss-Legendre in r.
-* ``fft_profile``: the 2-D FFT recipe of MODEL.md 5.3 item 4.
+* ``fft_profile``: the 2-D FFT recipe of model notes 5.3 item 4.
 """
 
 from __future__ import annotations
@@ -42,7 +42,7 @@ def _image_depths(g, n):
 
 
 def image_sum_profiles(sigma_a, sigma_s, d, eta_top, eta_bottom, r, n=400):
-    """Real-space R(r), T(r) in mm^-2 from 2n+1 dipole pairs (DJ2005, MODEL.md 5.1)."""
+    """Real-space R(r), T(r) in mm^-2 from 2n+1 dipole pairs (DJ2005, model notes 5.1)."""
     g = slab_geometry(sigma_a, sigma_s, d, eta_top, eta_bottom)
     z_r, z_v = _image_depths(g, n)
     r = np.asarray(r, dtype=float)[..., None]

@@ -1,6 +1,7 @@
 """The benchmark command runs and writes what it promises; the Pareto front is what it says."""
 
 import csv
+import re
 
 import pytest
 
@@ -24,11 +25,17 @@ def test_pareto_front_keeps_trade_offs_and_ignores_noise():
 def test_benchmark_command_writes_csv_plots_and_summary(tmp_path):
     assert bench.main(["--only", "planner", "--stress-points", "0", "--repeats", "1", "--out", str(tmp_path)]) == 0
     rows = list(csv.DictReader(open(tmp_path / "points.csv")))
-    assert {r["setting"] for r in rows} == {"reflectance + profiles (256 radii)", "reflectance only"}
-    assert all(float(r["time_s"]) > 0 for r in rows)
+    by_setting = {r["setting"]: r for r in rows}
+    assert set(by_setting) == {"reflectance + profiles (256 radii)", "reflectance only"}
+    # the reflectance-only plan computes the full plan's reflectance (to round-off), not an approximation
+    assert float(by_setting["reflectance only"]["error"]) <= 1e-12
+    assert by_setting["reflectance only"]["error_unit"] == "max |R - R(full plan)|"
     assert (tmp_path / "pareto_planner.png").stat().st_size > 10_000
+    # the summary states the ratio of the saved times, not another number
     summary = (tmp_path / "summary.md").read_text()
-    assert "Reflectance only costs 1/" in summary
+    stated = float(re.search(r"Reflectance only costs 1/(\d+)", summary).group(1))
+    times = {k: float(r["time_s"]) for k, r in by_setting.items()}
+    assert stated == round(times["reflectance + profiles (256 radii)"] / times["reflectance only"])
 
 
 @pytest.mark.slow
@@ -45,3 +52,21 @@ def test_transport_benchmark_writes_its_results(tmp_path):
     assert result["nist"]["rms_transport_below_diffusion"] == 2
     assert len((tmp_path / "transport_fit_nist.csv").read_text().splitlines()) == 3
     assert (tmp_path / "transport_fit_nist.png").stat().st_size > 0
+
+
+def test_the_numbers_census_attributes_what_it_can_and_lists_the_rest(tmp_path):
+    from benchmarks import numbers
+
+    results = {"benchmarks/results/x.json": [0.9916, 12.34]}
+    page = tmp_path / "page.md"
+    page.write_text(
+        "<!-- t:start -->\n| a | 7.25 |\n<!-- t:end -->\n\n"
+        "Fits took 12.3 s and reached 99.2 %. <!-- source: benchmarks/results/x.json -->\n\n"
+        "A claim of 0.52 with no source.\n\n"
+        "`skinfit demo --radii 0.001:20:256`\n\n"
+        "Named but wrong: 4.56 <!-- source: benchmarks/results/x.json -->\n"
+    )
+    got = {(shown, kind) for _, shown, kind, _ in numbers.classify(page, results)}
+    assert ("7.25", "generated") in got and ("12.3", "sourced") in got and ("99.2", "sourced") in got
+    assert ("0.52", "orphan") in got and ("4.56", "mismatch") in got and ("0.001:20:256", "code") not in got
+    assert all(kind == "code" for shown, kind in got if shown in ("0.001", "20", "256"))

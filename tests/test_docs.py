@@ -34,7 +34,7 @@ def test_every_page_and_notebook_is_in_the_navigation():
 
 def test_the_model_notes_hold_every_cited_section():
     cited = set()
-    for path in [*(ROOT / "skinfit").glob("*.py"), *(ROOT / "tests").glob("*.py")]:
-        cited |= set(re.findall(r"MODEL\.md (\d+(?:\.\d+)?)", path.read_text()))
+    for path in [*(ROOT / "skinfit").rglob("*.py"), *(ROOT / "tests").rglob("*.py")]:
+        cited |= set(re.findall(r"model notes,? (\d+(?:\.\d+)?)", path.read_text()))
     headings = set(re.findall(r"^#{2,3} (\d+(?:\.\d+)?)\.? ", (ROOT / "docs" / "model-notes.md").read_text(), flags=re.M))
     assert cited and cited <= headings, sorted(cited - headings)

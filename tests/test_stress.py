@@ -4,7 +4,8 @@ properties (values, derivatives, monotonicity in the diffusion model's validity 
 import jax.numpy as jnp
 import numpy as np
 import pytest
-from hypothesis import given, settings, strategies as st
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from benchmarks import stress
 

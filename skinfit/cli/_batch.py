@@ -1,0 +1,64 @@
+"""One fitted image written to a folder: the job of ``skinfit fit-image``, a batch and a Dask worker.
+
+``fit_image_to_folder`` fits one image and writes ``<stem>_reconstructed.png``, ``<stem>_dE2000.png``,
+``<stem>_skin_mask.png`` and, last and atomically (its presence marks the image done, so an
+interrupted batch keeps every finished image and a rerun skips them), ``<stem>_maps.exr``.
+"""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+
+from ..colorimetry import srgb_encode
+from ..fit import fit_image
+from ..io import write_exr, write_png
+
+
+def fit_image_to_folder(path, out: Path, options: dict) -> str:
+    """Fit one image and write its outputs into ``out``; returns the summary line."""
+    stem = Path(path).stem
+    fit = fit_image(path, **options)
+    maps_path = write_fit(fit, out, f"{stem}_", str(path), options.get("illuminant", "D65"))
+    summary = fit.summary()
+    return (
+        f"{path}: {summary['fitted']} of {summary['pixels']} pixels fitted ({100 * summary['fitted_fraction']:.1f} %), "
+        f"CIEDE2000 median {summary['median_dE2000']:.3g}, 95th percentile {summary['p95_dE2000']:.3g}, "
+        f"blend {summary['melanin_blend']:.3g}, white balance {' '.join(f'{g:.3f}' for g in fit.white_balance)}, "
+        f"model {summary['model']}, {summary['seconds']:.1f} s -> {maps_path}"
+    )
+
+
+def write_fit(fit, out: Path, prefix: str, source: str, illuminant: str) -> Path:
+    """Write ``<prefix>reconstructed.png``, ``<prefix>dE2000.png`` and, last (atomically, so that its
+    presence marks the image done), ``<prefix>maps.exr``; returns the maps path."""
+    write_png(out / f"{prefix}reconstructed.png", encoded_srgb(fit.fitted_linear_rgb))
+    write_png(out / f"{prefix}dE2000.png", delta_e_image(fit.residual_dE2000))
+    write_png(out / f"{prefix}skin_mask.png", fit.skin_mask[..., None])  # one channel, 0 or 255
+    attributes = {
+        "skinfit:source": source,
+        "skinfit:illuminant": illuminant,
+        "skinfit:white_balance": " ".join(f"{g:.9g}" for g in fit.white_balance),
+        "skinfit:model": fit.model_name,
+        "skinfit:summary": json.dumps(fit.summary()),
+    }
+    maps_path = out / f"{prefix}maps.exr"
+    write_exr(maps_path, fit.maps(), attributes)
+    return maps_path
+
+
+def encoded_srgb(linear: np.ndarray, rows: int = 256) -> np.ndarray:
+    """sRGB-encoded float32 copy of a linear image (clipped to [0, 1]), in bands of rows: a
+    4096 x 4096 image through JAX at once would hold several float64 copies."""
+    encoded = np.empty(linear.shape, np.float32)
+    for top in range(0, linear.shape[0], rows):
+        encoded[top : top + rows] = np.asarray(srgb_encode(np.clip(linear[top : top + rows], 0.0, 1.0).astype(np.float32)))
+    return encoded
+
+
+def delta_e_image(delta_e: np.ndarray) -> np.ndarray:
+    """CIEDE2000 map as a colour image: black 0 -> yellow 2 (clipped)."""
+    t = np.clip(delta_e / 2.0, 0.0, 1.0).astype(np.float32)[..., None]
+    return t * np.array([1.0, 0.85, 0.1], np.float32)

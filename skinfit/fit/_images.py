@@ -1,0 +1,415 @@
+"""Whole images to melanin, haemoglobin and shading maps, on the per-pixel solver of ``pixel_fit``.
+
+``fit_image`` adds what one pixel cannot know: the white balance from the skin
+(``skinfit.fit``), the fold's branch chosen against the smooth shading field of the
+neighbourhood, an edge-preserving spatial prior, and the statuses of pixels that are not skin.
+Pixels that cannot be fitted get a status code and zeros, never NaN. Images go through in bands
+of rows, so memory stays bounded.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import time
+
+import numpy as np
+
+from .._validate import SkinfitInputError
+from ..colorimetry import (
+    DEFAULT_ILLUMINANT,
+    HAEMOGLOBIN_MAX,
+    MELANIN_MAX,
+    ChartCalibration,
+    chart_calibration,
+    render_maps,
+)
+from ..io import read_linear_rgb, read_mask
+from ..model import SkinModel, model_with_options, resolve_model
+from ._image_calibration import calibrate
+from ._pixels import PixelStatus, fit_pixels, screen_pixels
+from ._spatial import neighbourhood_median, smooth_field
+from ._variables import VARIABLES, prior_coordinate
+
+#: ``PixelStatus``, ``fit_pixels`` (``pixel_fit``) and ``render_maps`` (``map_rendering``) are
+#: re-exported: this module is where users have found them.
+__all__ = ["ImageFit", "PixelStatus", "fit_image", "fit_pixels", "render_maps"]
+
+
+@dataclasses.dataclass(frozen=True)
+class ImageFit:
+    """Parameter maps of one image (each (h, w)), its reconstruction and a summary.
+
+    ``status`` holds ``PixelStatus`` codes; pixels that were not fitted hold 0 in every map. Maps
+    are float32 (relative precision 6e-8, as the EXR stores them).
+    ``white_balance`` are the camera gains (r, g, b) the fit divided out (1 unless fitted), and
+    ``colour_chart`` the chart correction applied first (or None): ``fitted_linear_rgb`` is in the
+    camera's values, as the input.
+    """
+
+    melanin: np.ndarray
+    melanin_blend: np.ndarray
+    haemoglobin: np.ndarray
+    shading: np.ndarray
+    residual_dE2000: np.ndarray
+    status: np.ndarray
+    fitted_linear_rgb: np.ndarray  # (h, w, 3)
+    seconds: float
+    melanin_se: np.ndarray | None = None
+    haemoglobin_se: np.ndarray | None = None
+    white_balance: tuple[float, float, float] = (1.0, 1.0, 1.0)
+    model: SkinModel | None = None
+    colour_chart: object | None = None  # the ChartCalibration the image was corrected with
+
+    @property
+    def model_name(self) -> str:
+        return resolve_model(self.model).name
+
+    @property
+    def skin_mask(self) -> np.ndarray:
+        """The automatic skin mask (h, w) bool: pixels fitted as skin (``SUCCESS``): not masked,
+        in the model's gamut, with parameters skin has, no glint."""
+        return self.status == PixelStatus.SUCCESS
+
+    MAP_NAMES = ("melanin", "melanin_blend", "haemoglobin", "shading", "residual_dE2000", "status", "melanin_se", "haemoglobin_se")
+
+    def maps(self) -> dict[str, np.ndarray]:
+        return {name: getattr(self, name) for name in self.MAP_NAMES if getattr(self, name) is not None}
+
+    def render(self, scale_melanin: float = 1.0, scale_haemoglobin: float = 1.0, illuminant: str = DEFAULT_ILLUMINANT) -> np.ndarray:
+        """Linear sRGB (h, w, 3) of the maps with scaled melanin and haemoglobin (an edit), through
+        the exact model and the fitted white balance. Pixels with maps (status up to
+        ``OUT_OF_MODEL``) are rendered; the others keep their fitted colour (0)."""
+        edited = render_maps(
+            scale_melanin * self.melanin, scale_haemoglobin * self.haemoglobin, self.shading,
+            melanin_blend=self.melanin_blend, illuminant=illuminant, model=self.model,
+        ) * np.asarray(self.white_balance)
+        if self.colour_chart is not None:
+            edited = self.colour_chart.invert(edited)
+        return np.where((self.status <= PixelStatus.OUT_OF_MODEL)[..., None], edited, self.fitted_linear_rgb)
+
+    def summary(self) -> dict[str, float]:
+        """Pixels, fitted fraction, median and 95th-percentile CIEDE2000 of the fitted pixels,
+        the blend and white balance, time."""
+        fitted = self.status == PixelStatus.SUCCESS
+        delta_e = self.residual_dE2000[fitted]
+        return {
+            "pixels": int(self.status.size),
+            "fitted": int(fitted.sum()),
+            "fitted_fraction": float(fitted.mean()),
+            "median_dE2000": float(np.median(delta_e)) if delta_e.size else float("nan"),
+            "p95_dE2000": float(np.percentile(delta_e, 95)) if delta_e.size else float("nan"),
+            # the blend of the fitted pixels (the map holds 0 where nothing was fitted)
+            "melanin_blend": round(float(np.median(self.melanin_blend[fitted])), 6) if fitted.any() else float("nan"),
+            "white_balance": list(self.white_balance),
+            **({"colour_chart_matrix": self.colour_chart.matrix.tolist(),
+                "colour_chart_median_dE2000": float(np.median(self.colour_chart.delta_e2000))} if self.colour_chart is not None else {}),
+            "model": self.model_name,
+            "seconds": self.seconds,
+        }
+
+
+#: Spatial regularisation of ln C_m and ln C_h (``fit_image(regularisation=...)``): the standard
+#: deviation of a pixel's value about the median of its neighbourhood, and that neighbourhood's size.
+REGULARISATION = {"off": None, "light": (0.3, 3), "strong": (0.05, 5)}
+
+
+def fit_image(
+    image,
+    *,
+    melanin_blend: float | None = None,
+    fit_blend: bool = False,
+    white_balance: str | bool | tuple[float, float, float] = "auto",
+    input_space: str | None = None,
+    mask=None,
+    use_alpha: bool = True,
+    illuminant: str = DEFAULT_ILLUMINANT,
+    regularisation: str = "light",
+    colour_chart=False,
+    method: str | None = None,
+    model: SkinModel | None = None,
+    progress: bool | None = None,
+    **options,
+) -> ImageFit:
+    """Fit melanin, haemoglobin and shading maps to a photo or albedo image.
+
+    Args:
+        image: a path (read through OpenImageIO, see ``skinfit.io``) or a linear sRGB array
+            (h, w, 3).
+        melanin_blend: beta_m for the whole image (three channels cannot carry it per pixel);
+            default: the population mean of the model's prior (0.42 for the calibrated model),
+            0.7 without a prior (DJ2006).
+        fit_blend: fit beta_m once for the whole image instead (``skinfit.fit``).
+        white_balance: ``"auto"`` (default) fits per-channel camera gains once for the image from
+            its skin pixels (``skinfit.fit``: photos and captures of unknown balance);
+            ``"none"`` for inputs known to be calibrated (albedo in linear sRGB, D65 white = 1);
+            a tuple (r, g, b) gives them. ``True``/``False`` mean ``"auto"``/``"none"``.
+        input_space: encoding of a file (``None``: from its type and metadata).
+        mask: (h, w) array or image path; pixels where it is 0 are not fitted (status MASKED).
+        use_alpha: treat the file's alpha channel as a mask.
+        illuminant: the illuminant of the camera model (colour-science name; D65 default).
+        regularisation: ``"off"``, ``"light"`` (default) or ``"strong"``: a prior on each pixel's
+            ln C_m and ln C_h centred on the median of its neighbourhood (edge-preserving), of
+            standard deviation 0.3 / 0.05 over 3 x 3 / 5 x 5 pixels, combined with the population prior
+            (weighed against the colour by ``colour_noise``: at 1 % noise light keeps ~95 % of a pixel's own
+            value, strong ~30 %);
+            ``prior=False`` (maximum likelihood) turns it off as well.
+        colour_chart: ``True`` finds a ColorChecker in the frame and fits the image in the colours
+            its correction matrix gives (``skinfit.colorimetry``; the white balance is then
+            ``"none"`` unless given); or a ``ChartCalibration`` from another shot of the same setup.
+            Reconstructions and renders go back through the matrix to the camera's values.
+        model: the ``SkinModel`` (default: the package default); ``method`` overrides its forward
+            method as in ``fit_pixels``.
+        **options: passed to ``fit_pixels`` (prior, colour_noise, max_delta_e, chunk_size, ...).
+
+    Spatial coherence: the fold's branches differ in shading by 2-5x, and shading varies smoothly
+    over a face, so after a first pass the branch of every pixel whose shading is far from the
+    smooth shading field of its surroundings is chosen again against that field (unless
+    ``shading_reference`` is given).
+    """
+
+
+    start = time.perf_counter()
+    model = model_with_options(model, method=method)
+    if regularisation not in REGULARISATION:
+        raise SkinfitInputError(f"regularisation must be one of {', '.join(REGULARISATION)}, got {regularisation!r}")
+    alpha = None
+    if _is_path(image):
+        rgb, alpha = read_linear_rgb(image, input_space)
+        rgb = rgb.astype(np.float32)  # a file holds no more (float, half or integer): half the memory of a 4096^2 image
+    else:
+        rgb = np.asarray(image, dtype=float)
+        if rgb.ndim != 3 or rgb.shape[-1] != 3:
+            raise SkinfitInputError(f"expected an image of shape (h, w, 3), got {rgb.shape}")
+    if _is_path(mask):
+        mask = read_mask(mask)
+    if mask is not None:
+        mask = np.asarray(mask)
+        if mask.ndim == 3 and mask.shape[-1] == 1:
+            mask = mask[..., 0]
+        if mask.shape != rgb.shape[:2]:
+            raise SkinfitInputError(f"mask has shape {mask.shape}, the image {rgb.shape[:2]}")
+    if use_alpha and alpha is not None:
+        mask = alpha if mask is None else np.minimum(mask, alpha)
+    chart = None
+    if colour_chart is not False and colour_chart is not None:
+
+        chart = colour_chart if isinstance(colour_chart, ChartCalibration) else chart_calibration(rgb)
+        rgb = chart.apply(rgb)
+        if isinstance(white_balance, str) and white_balance == "auto":
+            white_balance = "none"
+    if melanin_blend is None:
+        melanin_blend = _population_blend(model)
+    if isinstance(white_balance, bool):
+        white_balance = "auto" if white_balance else "none"
+    gains = np.ones(3)
+    if fit_blend or (isinstance(white_balance, str) and white_balance == "auto"):
+
+        pixels = rgb.reshape(-1, 3)
+        screened, _ = screen_pixels(pixels, mask, options.get("black_level", 1e-4), options.get("saturation_level", 0.999))
+        fittable = screened == PixelStatus.SUCCESS
+        if not fittable.any():
+            raise SkinfitInputError("no pixel of the image can be fitted (all black, saturated, masked or invalid)")
+        calibration = calibrate(
+            pixels[fittable], melanin_blend=None if fit_blend else melanin_blend, white_balance=white_balance == "auto",
+            illuminant=illuminant, model=model, colour_noise=options.get("colour_noise", 0.003), prior=options.get("prior"),
+        )
+        melanin_blend, gains = calibration.melanin_blend, np.asarray(calibration.white_balance)
+    elif isinstance(white_balance, str):
+        if white_balance != "none":
+            raise SkinfitInputError(f"white_balance must be 'auto', 'none' or three positive gains, got {white_balance!r}")
+    else:
+        gains = np.asarray(white_balance, dtype=float)
+        if gains.shape != (3,) or not np.all(gains > 0):
+            raise SkinfitInputError(f"white_balance must be 'auto', 'none' or three positive gains, got {white_balance}")
+    options = dict(melanin_blend=melanin_blend, illuminant=illuminant, model=model, **options)
+    maps = _fit_in_bands(rgb, gains, mask, options, progress)
+    if options.get("shading_reference") is None:
+        field = _coherent_branches(rgb, gains, maps, options)
+    else:
+        field = np.broadcast_to(np.asarray(options["shading_reference"], dtype=float), rgb.shape[:2])
+    if REGULARISATION[regularisation] is not None and options.get("prior") is not False:
+        _regularise(rgb, gains, maps, field, options, *REGULARISATION[regularisation])
+    _classify(rgb, gains, maps, field, model)
+    fitted = maps.pop("fitted_rgb")
+    if chart is not None:
+        fitted = chart.invert(fitted).astype(fitted.dtype)
+    return ImageFit(**maps, fitted_linear_rgb=fitted, seconds=time.perf_counter() - start, white_balance=tuple(float(g) for g in gains),
+                    model=model, colour_chart=chart)
+
+
+def _population_blend(model: SkinModel) -> float:
+    """The blend a fit uses when none is given: the population prior's mean, else DJ2006's 0.7."""
+    prior = model.prior
+    if prior is None or "melanin_blend" not in prior.names:
+        return 0.7
+    logit, _ = prior.moments("melanin_blend")
+    var = VARIABLES["melanin_blend"]
+    return round(var.low + (var.high - var.low) / (1.0 + np.exp(-logit)), 3)
+
+
+#: Shading ratio to the smooth field beyond which a pixel's branch is chosen again.
+_FAR_FROM_FIELD = np.log(1.25)
+
+
+def _fitted(maps) -> np.ndarray:
+    return (maps["status"] == PixelStatus.SUCCESS) | (maps["status"] == PixelStatus.MAX_STEPS)
+
+
+def _field_sigma(shape) -> float:
+    """Smoothing scale of the shading field: 1 % of the image's larger side, at least 2 pixels."""
+    return max(2.0, 0.01 * max(shape))
+
+
+def _shading_field(maps) -> np.ndarray:
+    """Smooth ln-shading field of the fitted pixels, twice: the second leaves out pixels far from
+    the first (those on the other branch)."""
+
+    fitted = _fitted(maps)
+    log_k = np.log(np.maximum(maps["shading"], np.float32(1e-12)))  # float32, as the maps
+    sigma = _field_sigma(log_k.shape)
+    field = smooth_field(log_k, fitted, sigma)
+    near = fitted & (np.abs(log_k - field) <= _FAR_FROM_FIELD)
+    return smooth_field(log_k, near, sigma)
+
+
+def _refit(rgb, gains, maps, where, options, band_pixels: int = 1 << 18, **overrides):
+    """Fit again the pixels ``where`` (h, w) with ``overrides`` (per-pixel arrays (h, w, ...) are
+    taken at those pixels) and write the results into ``maps``, ``band_pixels`` at a time (the
+    working memory of a 4096 x 4096 image stays that of one band)."""
+    rows, cols = np.nonzero(where)
+    for start in range(0, rows.size, band_pixels):
+        index = rows[start : start + band_pixels], cols[start : start + band_pixels]
+        pick = lambda v: v[index] if isinstance(v, np.ndarray) and v.ndim >= 2 else v  # noqa: E731
+        extra = {k: tuple(pick(a) for a in v) if isinstance(v, tuple) else pick(v) for k, v in overrides.items()}
+        part = fit_pixels(rgb[index], white_balance=tuple(gains), progress=False, **dict(options, **extra))
+        part["fitted_rgb"] = part["fitted_rgb"] * gains
+        for k, v in part.items():
+            maps[k][index] = v
+
+
+def _coherent_branches(rgb, gains, maps, options) -> np.ndarray:
+    """Choose the fold's branch again against the local shading field where the first pass's
+    shading is far from it; returns the field (h, w) (linear shading)."""
+    field = np.exp(_shading_field(maps))
+    # out-of-model pixels (hair, background) have no branch worth choosing, and are the slowest to refit
+    far = _fitted(maps) & (np.abs(np.log(np.maximum(maps["shading"], np.float32(1e-12)) / field)) > _FAR_FROM_FIELD)
+    _refit(rgb, gains, maps, far, options, shading_reference=field)
+    return field
+
+
+def _regularise(rgb, gains, maps, field, options, sd, size):
+    """Refit every fitted pixel under a prior centred on its neighbourhood's median ln C (an
+    edge-preserving centre), combined with the population prior (precisions add)."""
+
+    fitted = _fitted(maps)
+    if not fitted.any():
+        return
+    model = options["model"]
+    centres, sds = [], []
+    population = model.prior
+    for name in ("melanin", "haemoglobin"):
+        log_c = np.log(np.maximum(maps[name], np.float32(1e-9)))
+        fill = smooth_field(log_c, fitted, _field_sigma(log_c.shape))
+        centre = neighbourhood_median(log_c, fitted, size, fill)
+        if population is not None and options.get("prior", True) is not False:
+            p_mean, p_sd = population.moments(name)
+            precision = 1.0 / sd**2 + 1.0 / p_sd**2
+            centre, combined = (centre / sd**2 + p_mean / p_sd**2) / precision, np.sqrt(1.0 / precision)
+        else:
+            combined = sd
+        centres.append(centre.astype(np.float32))  # float32: a 4096 x 4096 image's centres in 134 MB
+        sds.append(combined)
+    _refit(rgb, gains, maps, fitted, options, prior_mean=np.stack(centres, axis=-1), prior_sd=np.array(sds),
+           shading_reference=field, prior=True, initial=(maps["melanin"], maps["haemoglobin"]))
+
+
+#: Candidate pixels per chunk of the glint test.
+_CLASSIFY_CHUNK = 1 << 18
+
+#: Relative residual below which a pixel is the neighbourhood's skin colour plus white (a glint).
+_SPECULAR_FIT = 0.03
+
+#: |ln(shading / shading field)| beyond which a pixel is another surface than the skin around it
+#: (a factor 3: the fold's branches differ by 2-5x, but the field has chosen among them already).
+_OTHER_SURFACE = np.log(3.0)
+
+#: Population-prior standard deviations of ln C beyond which a fit is not skin (5: C_m outside
+#: 0.5-85 %, C_h outside 0.08-62 % for the calibrated model's prior).
+_IMPLAUSIBLE_Z = 5.0
+
+
+def _classify(rgb, gains, maps, field, model):
+    """Statuses of pixels that fit the model badly or implausibly: ``SPECULAR`` (the smooth local
+    skin colour at no less than 80 % of the local shading plus a white component of at least 10 %
+    of the pixel), ``NOT_SKIN`` (roots pinned at the box's far edge, ln C more than
+    ``_IMPLAUSIBLE_Z`` prior standard deviations from the population mean, or a shading 3x off the
+    smooth field of its surroundings: hair, brows, eyes).
+    Their maps are zeroed: a value no skin has is never presented as skin."""
+
+    status = maps["status"]
+    pinned = (maps["melanin"] >= 0.999 * MELANIN_MAX) | (maps["haemoglobin"] >= 0.999 * HAEMOGLOBIN_MAX)
+    implausible = pinned
+    population = model.prior
+    if population is not None:
+        for name in ("melanin", "haemoglobin"):
+            mean, sd = population.moments(name)
+            implausible = implausible | (np.abs(prior_coordinate(name, maps[name]) - mean) > _IMPLAUSIBLE_Z * sd)
+    # another surface than the skin around it (hair, brows, eyes): a shading far from the field
+    implausible = implausible | (np.abs(np.log(np.maximum(maps["shading"], 1e-12) / field)) > _OTHER_SURFACE)
+    status[(status <= PixelStatus.OUT_OF_MODEL) & implausible] = PixelStatus.NOT_SKIN
+
+    # glints: t = a L + s g, with L the local skin colour per unit shading and g the white (gains)
+    candidates = np.nonzero((status == PixelStatus.OUT_OF_MODEL) | (status == PixelStatus.NOT_SKIN))
+    skin = status == PixelStatus.SUCCESS
+    if candidates[0].size and skin.any():
+        sigma = _field_sigma(status.shape)
+        fields = [smooth_field(maps["fitted_rgb"][..., c] / np.maximum(maps["shading"], np.float32(1e-12)), skin, sigma) for c in range(3)]
+        for start in range(0, candidates[0].size, _CLASSIFY_CHUNK):  # bounded temporaries on a 4096^2 image
+            index = tuple(i[start : start + _CLASSIFY_CHUNK] for i in candidates)
+            local = np.stack([f[index] for f in fields], axis=-1)
+            t = rgb[index]
+            basis = np.stack([local, np.broadcast_to(gains, local.shape)], axis=-1)  # (n, 3, 2)
+            # normal equations of the two columns, batched (1e-30: a black local colour)
+            gram = np.einsum("nck,ncl->nkl", basis, basis) + 1e-30 * np.eye(2)
+            coef = np.linalg.solve(gram, np.einsum("nck,nc->nk", basis, t)[..., None])[..., 0]
+            residual = np.linalg.norm(t - np.einsum("nck,nk->nc", basis, coef), axis=-1) / np.maximum(np.linalg.norm(t, axis=-1), 1e-12)
+            white_share = coef[:, 1] * np.mean(gains) / np.maximum(np.mean(t, axis=-1), 1e-12)
+            glint = (coef[:, 0] > 0.8 * field[index]) & (white_share > 0.1) & (residual < _SPECULAR_FIT)
+            status[tuple(i[glint] for i in index)] = PixelStatus.SPECULAR
+    not_skin = status >= PixelStatus.NOT_SKIN
+    for name in ("melanin", "haemoglobin", "shading", "melanin_se", "haemoglobin_se"):
+        maps[name][not_skin] = 0.0
+
+
+def _fit_in_bands(rgb, gains, mask, options, progress, band_pixels: int = 1 << 18):
+    """``fit_pixels`` over bands of rows of at most ``band_pixels`` pixels, into preallocated
+    float32 maps (as the EXR stores them; ``fit_pixels`` returns float64): the working memory of a
+    4096 x 4096 image stays that of one band. The shading reference that picks the fold's branch
+    comes from the first band."""
+    h, w, _ = rgb.shape
+    rows = max(1, band_pixels // max(w, 1))
+    maps = None
+    bands = range(0, h, rows)
+    if progress is None:
+        progress = len(bands) > 1
+    if progress and len(bands) > 1:
+        from tqdm.auto import tqdm
+
+        bands = tqdm(bands, desc="fitting bands", unit="band")
+    for top in bands:
+        # the camera's values: black and clipped pixels are judged before the white balance divides them
+        part = fit_pixels(rgb[top : top + rows], mask=None if mask is None else mask[top : top + rows], white_balance=tuple(gains),
+                          progress=False, **options)
+        part["fitted_rgb"] = part["fitted_rgb"] * gains
+        if maps is None:
+            maps = {k: np.zeros((h, w, *v.shape[2:]), np.float32 if v.dtype == np.float64 else v.dtype) for k, v in part.items()}
+            if options.get("shading_reference") is None and len(range(0, h, rows)) > 1:
+                fitted = part["status"] == PixelStatus.SUCCESS
+                options = dict(options, shading_reference=float(np.median(part["shading"][fitted])) if fitted.any() else None)
+        for k, v in part.items():
+            maps[k][top : top + rows] = v
+    return maps
+
+
+def _is_path(value) -> bool:
+    return isinstance(value, (str, bytes)) or hasattr(value, "__fspath__")

@@ -1,0 +1,553 @@
+"""Per-pixel inversion of linear RGB pixels to melanin, haemoglobin and shading: the solver.
+
+Camera model: a pixel's linear sRGB (D65 white = 1) is
+
+    rgb = gains * shading * M W R(lambda; C_m, beta_m, C_h)
+
+with R the skin model's diffuse reflectance at 400-700 nm / 10 nm, W the CIE 1931 2-degree colour
+matching functions weighted by the illuminant (D65 by default, Bradford-adapted to D65 otherwise),
+M the XYZ -> linear sRGB matrix (``skinfit.colorimetry``) and gains the camera's white balance.
+Three channels carry three unknowns per pixel: C_m, C_h and the shading; the melanin blend and the
+gains are one value for the whole image (given, or fitted once by ``skinfit.fit``).
+
+``fit_pixels``, per pixel, over fixed-size chunks compiled once:
+
+1. warm start: the inverse table (``skinfit.colorimetry``) gives one or two starts from the
+   pixel's chromaticity, each refined by a Newton step in chromaticity; the second (a second
+   branch of the fold) only where it differs;
+2. solve: Levenberg-Marquardt in lock-step on the model's colour spline (exact to ~3e-7 in linear
+   sRGB), with the shading eliminated in closed form (variable projection: for a colour m the best
+   shading is t.m / m.m), the residual relative to the pixel's brightness so that dark and bright
+   pixels weigh alike, the prior on ln C_m and ln C_h as two more residual rows (MAP; weights 0
+   without one), and the roots projected onto the box; converged when the undamped Gauss-Newton
+   step still to go is at most ``step_tol``. The others are gathered for more steps, and what
+   remains goes to optimistix's Levenberg-Marquardt;
+3. optionally (``exact_steps``), Gauss-Newton steps on the exact forward model remove the
+   spline's last ~1e-7.
+
+Where both branches fit, the one whose shading is nearest a reference wins. Pixels that cannot be
+fitted get a status code and zeros, never NaN. ``skinfit.fit`` builds whole images on it.
+"""
+
+from __future__ import annotations
+
+import enum
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+import numpy as np
+import optimistix as optx
+
+from .._batching import map_batches, pad_size
+from .._validate import SkinfitInputError
+from ..colorimetry import (
+    DEFAULT_ILLUMINANT,
+    ColourTable,
+    colour_table,
+    delta_e2000,
+    linear_srgb_to_lab,
+    model_rgb,
+    spline_channels,
+    spline_rgb,
+    warm_starts,
+)
+from ..model import SkinModel, cache_key, model_with_options
+from ._lockstep import LockstepState
+
+
+class PixelStatus(enum.IntEnum):
+    """Per-pixel outcome of ``fit_pixels``."""
+
+    SUCCESS = 0  #: converged; maps hold the fit
+    MAX_STEPS = 1  #: stopped at the step limit; maps hold the best iterate
+    OUT_OF_MODEL = 2  #: the best fit misses the pixel by more than ``max_delta_e`` CIEDE2000 (not skin?)
+    BAD_INPUT = 3  #: NaN, Inf or negative values
+    MASKED = 4  #: outside the mask
+    BLACK = 5  #: too dark to carry colour
+    SATURATED = 6  #: a channel at the clipping level
+    NOT_SKIN = 7  #: fitted only by parameters no skin has (hair, brows, lips, cloth): pinned at the box's edge or far outside the population prior
+    SPECULAR = 8  #: a glint: the neighbourhood's skin colour plus white light, not a diffuse skin colour
+
+
+def _spline_colour(coefficients):
+    """Colour of the spline at roots u, v (n,): (value, d/du, d/dv), each a tuple of 3 channels."""
+
+    def colour(u, v):
+        channels = spline_channels(coefficients, u, v)
+        return tuple(tuple(channel[i] for channel in channels) for i in range(3))
+
+    return colour
+
+
+def _exact_colour(melanin_blend, melanin_max, haemoglobin_max, weights, model):
+    """The exact model's colour at roots u, v (n,), in the layout of ``_spline_colour``."""
+
+    def one(roots):
+        colour = lambda r: model_rgb(r[None], melanin_blend, melanin_max, haemoglobin_max, weights, model)[0]  # noqa: E731
+        value, du = jax.jvp(colour, (roots,), (jnp.array([1.0, 0.0], roots.dtype),))
+        dv = jax.jvp(colour, (roots,), (jnp.array([0.0, 1.0], roots.dtype),))[1]
+        return value, du, dv
+
+    def colour(u, v):
+        return tuple(tuple(a[:, c] for c in range(3)) for a in jax.vmap(one)(jnp.stack([u, v], axis=-1)))
+
+    return colour
+
+
+def _dot3(a, b):
+    """Dot product of two colours held as 3-tuples of (n,) channels, written out."""
+    return a[0] * b[0] + a[1] * b[1] + a[2] * b[2]
+
+
+class _Normal(eqx.Module):
+    """What a pixel's iterate carries besides its roots and cost (each (n,)): the 2x2 normal
+    equations J^T J (uu, uv, vv) and J^T r (gu, gv) of the relative residual r (shading
+    eliminated), the best shading and the model colour (3 channels)."""
+
+    uu: jax.Array
+    uv: jax.Array
+    vv: jax.Array
+    gu: jax.Array
+    gv: jax.Array
+    shading: jax.Array
+    colour: tuple
+
+
+def _projected(colour, u, v, target, scale, prior) -> LockstepState:
+    """Variable projection at roots u, v (n,): relative residual r = (t - k m) |t|^-1 with the best
+    shading k = t.m / m.m, and the prior's rows (``_prior_rows``), reduced to the normal
+    equations of the two roots: a ``LockstepState`` with point (u, v), the cost |r|^2 and a ``_Normal``
+    carry. Only these ten numbers per pixel travel between steps: carrying r and J (13 more) made
+    every kept-or-refused selection recompute the residual."""
+    m, dm_u, dm_v = colour(u, v)
+    mm = _dot3(m, m)
+    tm = _dot3(target, m)
+    k = tm / mm
+
+    r = tuple((t - k * c) * scale for t, c in zip(target, m))
+
+    def d_residual(dm):
+        dk = _dot3(target, dm) / mm - tm * 2.0 * _dot3(m, dm) / (mm * mm)
+        return tuple(-(dk * c + k * d) * scale for c, d in zip(m, dm))
+
+    ju, jv = d_residual(dm_u), d_residual(dm_v)
+    cost, uu, uv, vv, gu, gv = _dot3(r, r), _dot3(ju, ju), _dot3(ju, jv), _dot3(jv, jv), _dot3(ju, r), _dot3(jv, r)
+    # the prior's rows w (log root - c): d/du = w / u
+    centre_u, centre_v, weight_u, weight_v = prior
+    row_u, row_v = weight_u * (jnp.log(u) - centre_u), weight_v * (jnp.log(v) - centre_v)
+    cost, gu, gv = cost + row_u * row_u + row_v * row_v, gu + weight_u / u * row_u, gv + weight_v / v * row_v
+    uu, vv = uu + (weight_u / u) ** 2, vv + (weight_v / v) ** 2
+    return LockstepState((u, v), cost, _Normal(uu, uv, vv, gu, gv, k, m))
+
+
+#: Lower bound of the roots in the solver: C = max * root^2 has zero slope at root 0, which would
+#: trap a pixel there (the cost is even in the root); 1e-3 means C_m >= 5e-7, C_h >= 1.5e-7.
+_ROOT_FLOOR = 1e-3
+
+
+def _step(state: LockstepState, damping):
+    """The damped Gauss-Newton step (Marquardt's scaling) projected on the box: a root on a bound
+    that its step pushes out of the box stays there and the other takes its own one-variable step
+    (clipping the joint step instead stalls on the bound)."""
+    (u, v), n = state.point, state.carry
+    uu, uv, vv, gu, gv = n.uu, n.uv, n.vv, n.gu, n.gv
+    floor = 1e-12 * jnp.maximum(uu, vv) + 1e-300  # against a dead direction
+    du, dv = uu * (1.0 + damping) + floor, vv * (1.0 + damping) + floor
+    det = du * dv - uv * uv
+    step_u, step_v = -(dv * gu - uv * gv) / det, -(du * gv - uv * gu) / det
+    out_u = ((u <= _ROOT_FLOOR) & (step_u < 0.0)) | ((u >= 1.0) & (step_u > 0.0))
+    out_v = ((v <= _ROOT_FLOOR) & (step_v < 0.0)) | ((v >= 1.0) & (step_v > 0.0))
+    step_u, step_v = jnp.where(out_v, -gu / du, step_u), jnp.where(out_u, -gv / dv, step_v)
+    step_u, step_v = jnp.where(out_u, 0.0, step_u), jnp.where(out_v, 0.0, step_v)
+    finite = jnp.isfinite(step_u) & jnp.isfinite(step_v)
+    return jnp.where(finite, step_u, 0.0), jnp.where(finite, step_v, 0.0)
+
+
+def _stationary(state: LockstepState, tol=1e-4):
+    """First-order optimality on the box: each free column of the Jacobian orthogonal to the
+    residual to within ``tol`` (cosine); a column at a bound that the gradient pushes out of the
+    box counts as orthogonal. At cosine c the step still to go is ~ c |r| / |J|: 1e-4 leaves
+    ~1e-6 in the roots for the 1 % residuals of colours just outside the gamut."""
+    norm_r = jnp.sqrt(state.cost)
+    (u, v), n = state.point, state.carry
+
+    def free_cosine(g, jj, x):  # g: the cost's half-gradient along this root, jj = |J column|^2
+        blocked = ((x <= _ROOT_FLOOR) & (g > 0.0)) | ((x >= 1.0) & (g < 0.0))
+        return jnp.where(blocked, 0.0, jnp.abs(g) / (jnp.sqrt(jj) * norm_r + 1e-300))
+
+    return jnp.maximum(free_cosine(n.gu, n.uu, u), free_cosine(n.gv, n.vv, v)) <= tol
+
+
+def _gauss_newton(colour, roots, target, damping, steps, prior):
+    """``steps`` Levenberg-Marquardt steps in lock-step over pixels (n, 3) from roots (n, 2) with
+    the damping (n,) they start with (a straggler goes on with the damping it stopped at).
+
+    Each step solves the 2x2 damped normal equations, projects the step onto the box and keeps it
+    only if the cost does not rise; the damping falls after a kept step and rises after a refused
+    one (under heavy melanin the haemoglobin direction is weak and undamped Gauss-Newton
+    overshoots). ``remaining`` estimates each pixel's distance to the optimum in the roots: the
+    undamped step from the final point (Gauss-Newton converges quadratically, so after it the
+    error would be ~its square), or 0 where the point is first-order stationary (colours outside
+    the gamut, where the steps shrink only linearly).
+
+    ``prior`` (n, 4): per pixel the centres and weights of the prior rows (``_prior_rows``).
+
+    Returns the roots (n, 2), the shading, ``remaining``, the square root of the cost (relative
+    residual and prior rows) (each (n,)), the fitted colour (n, 3), the damping (n,) and the
+    Gauss-Newton normal matrix (uu, uv, vv) (n, 3) for standard errors.
+    """
+    target = (target[:, 0], target[:, 1], target[:, 2])
+    scale = 1.0 / jnp.sqrt(_dot3(target, target))
+    prior = tuple(prior[:, i] for i in range(4))
+
+    def step(_, carried):
+        state, damping = carried
+        (u, v), (step_u, step_v) = state.point, _step(state, damping)
+        trial = _projected(colour, jnp.clip(u + step_u, _ROOT_FLOOR, 1.0), jnp.clip(v + step_v, _ROOT_FLOOR, 1.0), target, scale, prior)
+        keep = trial.cost <= state.cost
+        state = trial.keep_where(keep, state)
+        return state, jnp.where(keep, jnp.maximum(damping * 0.1, 1e-9), jnp.minimum(damping * 10.0, 1e9))
+
+    start = jnp.clip(roots, _ROOT_FLOOR, 1.0)
+    start = _projected(colour, start[:, 0], start[:, 1], target, scale, prior)
+    state, damping = jax.lax.fori_loop(0, steps, step, (start, damping))
+    step_u, step_v = _step(state, 0.0)
+    remaining = jnp.where(_stationary(state), 0.0, jnp.maximum(jnp.abs(step_u), jnp.abs(step_v)))
+    n = state.carry
+    fitted = jnp.stack([n.shading * c for c in n.colour], axis=-1)
+    normal = jnp.stack([n.uu, n.uv, n.vv], axis=-1)
+    return jnp.stack(state.point, axis=-1), n.shading, remaining, jnp.sqrt(state.cost), fitted, damping, normal
+
+
+#: Levenberg-Marquardt's first damping: the affine warm starts are close enough that Gauss-Newton
+#: rarely overshoots from them; a refused step raises it tenfold.
+_INITIAL_DAMPING = 1e-5
+
+
+@jax.jit
+def _spline_chunk(coefficients, roots, target, damping, prior, steps):
+    return _gauss_newton(_spline_colour(coefficients), roots, target, damping, steps, prior)
+
+
+@jax.jit
+def _first_pass_chunk(coefficients, inverse, target, prior, steps):
+    """Warm starts and ``steps`` steps from the first; also the second start (n, 2) for a retry
+    and whether it differs from the first (n,)."""
+    starts = warm_starts(inverse, target)
+    damping = jnp.full(len(target), _INITIAL_DAMPING, target.dtype)
+    solved = _gauss_newton(_spline_colour(coefficients), starts[:, 0], target, damping, steps, prior)
+    return (*solved, starts[:, 1], jnp.any(starts[:, 0] != starts[:, 1], axis=-1))
+
+
+#: Pixels per chunk of the exact transport polish (measured: ~2.2 MB of device memory per pixel).
+_TRANSPORT_CHUNK = 1024
+
+
+@eqx.filter_jit
+def _exact_chunk(exact_model, roots, target, prior, steps):
+    damping = jnp.full(len(roots), _INITIAL_DAMPING, roots.dtype)
+    return _gauss_newton(_exact_colour(*exact_model), roots, target, damping, steps, prior)
+
+
+@jax.jit
+def _delta_e_chunk(measured, fitted):
+    return (delta_e2000(linear_srgb_to_lab(measured), linear_srgb_to_lab(fitted)),)
+
+
+@eqx.filter_jit
+def _levenberg_marquardt(coefficients, roots, target, prior, max_steps, rtol, atol):
+    """optimistix Levenberg-Marquardt on the spline for the pixels the lock-step solver left
+    moving, with the same prior rows; the box by clipping inside the residual (a pixel that ends
+    outside sits on the bound its gradient pushes it to)."""
+
+    def residual(z, args):
+        t, prior = args
+        z = jnp.clip(z, _ROOT_FLOOR, 1.0)
+        m = spline_rgb(coefficients, z[None])[0][0]
+        k = jnp.dot(t, m) / jnp.dot(m, m)
+        return jnp.concatenate([(t - k * m) / jnp.linalg.norm(t), prior[2:] * (jnp.log(z) - prior[:2])])
+
+    def one(r0, t, p):
+        solver = optx.LevenbergMarquardt(rtol=rtol, atol=atol)
+        sol = optx.least_squares(residual, solver, r0, args=(t, p), max_steps=max_steps, throw=False)
+        z = jnp.where(jnp.all(jnp.isfinite(sol.value)), sol.value, r0)
+        return jnp.clip(z, 0.0, 1.0), sol.result == optx.RESULTS.successful
+
+    return jax.vmap(one)(roots, target, prior)
+
+
+def fit_pixels(
+    linear_rgb: np.ndarray,
+    *,
+    melanin_blend: float = 0.7,
+    illuminant: str = DEFAULT_ILLUMINANT,
+    mask: np.ndarray | None = None,
+    steps: int = 1,
+    straggler_steps: int = 2,
+    max_straggler_rounds: int = 48,
+    lm_max_steps: int = 64,
+    exact_steps: int = 0,
+    step_tol: float = 1e-7,
+    shading_reference: float | None = None,
+    max_delta_e: float = 1.0,
+    black_level: float = 1e-4,
+    saturation_level: float = 0.999,
+    chunk_size: int = 32768,
+    progress: bool | None = None,
+    table: ColourTable | None = None,
+    method: str | None = None,
+    model: SkinModel | None = None,
+    white_balance: tuple[float, float, float] | None = None,
+    prior: bool | None = None,
+    colour_noise: float = 0.003,
+    prior_mean: np.ndarray | None = None,
+    prior_sd: np.ndarray | None = None,
+    initial: tuple[np.ndarray, np.ndarray] | None = None,
+) -> dict[str, np.ndarray]:
+    """Fit every pixel of a linear sRGB image (h, w, 3) (or pixels (n, 3)).
+
+    Args:
+        steps: Levenberg-Marquardt steps for every pixel; ``straggler_steps`` more, up to
+            ``max_straggler_rounds`` times, for those whose estimated distance to the optimum
+            (the undamped Gauss-Newton step, in normalised roots) is above ``step_tol``, then up
+            to ``lm_max_steps`` of optimistix's Levenberg-Marquardt.
+        exact_steps: Gauss-Newton steps on the exact model after the spline fit (0: none).
+        shading_reference: the shading that decides between the fold's branches (default: the
+            median shading of the pixels with one branch).
+        max_delta_e: CIEDE2000 above which a pixel is ``OUT_OF_MODEL`` (default 1, about a
+            just-noticeable difference: the skin model cannot reproduce the pixel).
+        black_level, saturation_level: linear values below / at or above which a pixel is
+            ``BLACK`` / ``SATURATED`` (judged on the values given, before ``white_balance``).
+        table: a ``colour_table(...)`` of another resolution (spline nodes, inverse cells) to use
+            instead of the default one; its blend, illuminant and model must match.
+        model: the ``SkinModel`` (default: the package default); ``method`` overrides its forward
+            method (``"transport"``: direct adding-doubling, whose colour table takes minutes on a
+            laptop CPU, once per process and blend). The colour spline and the ``exact_steps`` use it.
+        white_balance: per-channel camera gains the pixels carry: the skin model is fitted to the
+            pixels divided by them (``fitted_rgb`` is without them).
+
+        prior: fit the maximum a posteriori estimate under a Gaussian prior on (ln C_m, ln C_h)
+            (default: where the model has a population prior, i.e. the calibrated model);
+            ``False``: maximum likelihood (exact round trips of the model's own colours).
+        colour_noise: relative RMS error of a channel (linear values) that the fit allows: what weighs
+            the prior against the colour, and the scale of the standard errors. The default 0.3 %
+            is about 8-bit quantisation of mid-tones; a larger value trusts the prior more (1 %:
+            the fit departs from the colour by CIEDE2000 ~0.3 to reach likelier parameters).
+        prior_mean, prior_sd: (2,) or per pixel (..., 2) mean and standard deviation of
+            (ln C_m, ln C_h) that replace the model's population prior (spatial regularisation
+            passes the neighbourhood's values here).
+        initial: (C_m, C_h), each of the input's leading shape, to start from instead of the
+            inverse table's warm starts (a refit from an earlier fit: its branch is kept).
+
+    Returns maps of the input's leading shape: ``melanin``, ``melanin_blend``, ``haemoglobin``,
+    ``shading``, ``residual_dE2000``, ``status`` (``PixelStatus``), ``fitted_rgb`` (..., 3), and
+    ``melanin_se``, ``haemoglobin_se``: Laplace standard errors (the Gauss-Newton posterior at the fit,
+    with ``colour_noise``), 0 where nothing was fitted.
+    """
+    rgb = np.asarray(linear_rgb, dtype=float)
+    if rgb.ndim < 2 or rgb.shape[-1] != 3:
+        raise SkinfitInputError(f"expected RGB pixels of shape (..., 3), got {rgb.shape}")
+    if rgb.size == 0:
+        raise SkinfitInputError("the image is empty")
+    shape = rgb.shape[:-1]
+    pixels = rgb.reshape(-1, 3)
+    status, clean = screen_pixels(pixels, mask, black_level, saturation_level)
+    if white_balance is not None:
+        gains = np.asarray(white_balance, dtype=float)
+        if gains.shape != (3,) or not np.all(gains > 0):
+            raise SkinfitInputError(f"white_balance must be three positive gains, got {white_balance}")
+        clean = clean / gains
+
+    model = model_with_options(model, method=method)
+    if table is None:
+        table = colour_table(float(melanin_blend), illuminant, model=model)
+    elif (table.melanin_blend, table.illuminant, cache_key(table.model)) != (float(melanin_blend), illuminant, cache_key(model)):
+        raise SkinfitInputError("the colour table's melanin_blend, illuminant and model must match the fit's")
+    todo = np.flatnonzero(status == 0)
+    n = len(pixels)
+    rows = _prior_rows(model, table, n, prior, colour_noise, prior_mean, prior_sd)
+    if shading_reference is not None and np.ndim(shading_reference):
+        shading_reference = np.broadcast_to(np.asarray(shading_reference, dtype=float), shape).reshape(-1)[todo]
+    roots, shading, remaining, delta_e, fitted = np.zeros((n, 2)), np.zeros(n), np.zeros(n), np.zeros(n), np.zeros((n, 3))
+    normal = np.zeros((n, 3))
+    if initial is not None:
+        initial = np.stack([np.sqrt(np.clip(np.asarray(c, dtype=float).reshape(-1) / top, 0.0, 1.0))
+                            for c, top in zip(initial, (table.melanin_max, table.haemoglobin_max))], axis=-1)[todo]
+    if todo.size:
+        solved = _solve(
+            table, clean[todo], rows[todo], steps, straggler_steps, max_straggler_rounds, lm_max_steps, step_tol,
+            shading_reference, pad_size(todo.size, chunk_size), progress, initial,
+        )
+        if exact_steps:
+            exact_model = table.model_arguments()
+            exact = lambda t, r, p: _exact_chunk(exact_model, r, t, p, exact_steps)  # noqa: E731
+            # a direct transport Jacobian holds ~2 MB per pixel (doubling loops): smaller chunks
+            direct = model.method.solves_directly
+            size = pad_size(todo.size, min(chunk_size, _TRANSPORT_CHUNK) if direct else chunk_size)
+            polished = map_batches(exact, (clean[todo], solved[0], rows[todo]), size, progress, "exact polish")
+            # converged: the spline fit had, and the exact steps leave at most step_tol to go
+            polished[2] = np.where(solved[2] <= step_tol, polished[2], np.inf)
+            solved = polished[:5] + [polished[6]]
+        roots[todo], shading[todo], remaining[todo], _, fitted[todo], normal[todo] = solved
+        (delta_e[todo],) = map_batches(_delta_e_chunk, (clean[todo], fitted[todo]), pad_size(todo.size, chunk_size))
+        status[todo[remaining[todo] > step_tol]] = PixelStatus.MAX_STEPS
+        # a colour the model misses by more than max_delta_e is not skin as the camera model sees
+        # it, whether or not the solver settled (colours far outside the gamut settle slowly)
+        status[todo[delta_e[todo] > max_delta_e]] = PixelStatus.OUT_OF_MODEL
+    fitted_any = np.isin(status, (PixelStatus.SUCCESS, PixelStatus.MAX_STEPS, PixelStatus.OUT_OF_MODEL))
+    melanin, haemoglobin = table.parameters(roots)
+    melanin_se, haemoglobin_se = _standard_errors(table, roots, normal, colour_noise)
+    maps = {
+        "melanin": melanin,
+        "melanin_blend": np.full(n, float(melanin_blend)),
+        "haemoglobin": haemoglobin,
+        "shading": shading,
+        "residual_dE2000": delta_e,
+        "melanin_se": melanin_se,
+        "haemoglobin_se": haemoglobin_se,
+    }
+    for values in maps.values():
+        values[~fitted_any] = 0.0
+    fitted[~fitted_any] = 0.0
+    maps["status"] = status
+    maps["fitted_rgb"] = fitted
+    return {k: v.reshape(*shape, *v.shape[1:]) for k, v in maps.items()}
+
+
+def _prior_rows(model, table, n, prior, colour_noise, mean, sd) -> np.ndarray:
+    """The solver's prior rows (n, 4): centres of ln u, ln v and weights colour_noise / sd(ln u)
+    (u = sqrt(C / C_max), so ln u = (ln C - ln C_max) / 2); weights 0 without a prior."""
+    population = model.prior
+    if prior is None:
+        prior = population is not None or mean is not None
+    rows = np.zeros((n, 4))
+    if not prior:
+        return rows
+    if mean is None or sd is None:
+        if population is None:
+            raise SkinfitInputError("prior=True needs a model with a population prior (the calibrated model) or prior_mean and prior_sd")
+        moments = np.array([population.moments(name) for name in ("melanin", "haemoglobin")])
+        mean = moments[:, 0] if mean is None else mean
+        sd = moments[:, 1] if sd is None else sd
+    if not colour_noise > 0:
+        raise SkinfitInputError(f"colour_noise must be positive, got {colour_noise}")
+    mean = np.broadcast_to(np.asarray(mean, dtype=float), (*np.shape(mean)[:-1], 2)).reshape(-1, 2)
+    sd = np.broadcast_to(np.asarray(sd, dtype=float), (*np.shape(sd)[:-1], 2)).reshape(-1, 2)
+    if not np.all(sd > 0):
+        raise SkinfitInputError("prior_sd must be positive")
+    maxima = np.log([table.melanin_max, table.haemoglobin_max])
+    rows[:, :2] = (mean - maxima) / 2.0
+    rows[:, 2:] = colour_noise / (sd / 2.0)
+    return rows
+
+
+def _standard_errors(table, roots, normal, colour_noise):
+    """Laplace standard errors of C_m, C_h (each (n,)) from the roots' Gauss-Newton normal matrix
+    (uu, uv, vv) (n, 3): the roots' covariance is colour_noise^2 (J^T J)^-1, and C = C_max u^2."""
+    uu, uv, vv = normal[:, 0], normal[:, 1], normal[:, 2]
+    det = uu * vv - uv * uv
+    with np.errstate(divide="ignore", invalid="ignore"):
+        se_u = colour_noise * np.sqrt(np.where(det > 0, vv / det, np.inf))
+        se_v = colour_noise * np.sqrt(np.where(det > 0, uu / det, np.inf))
+    # an unidentified direction reports the whole box rather than Inf
+    se_u, se_v = np.minimum(np.nan_to_num(se_u, nan=1.0, posinf=1.0), 1.0), np.minimum(np.nan_to_num(se_v, nan=1.0, posinf=1.0), 1.0)
+    return 2.0 * table.melanin_max * roots[:, 0] * se_u, 2.0 * table.haemoglobin_max * roots[:, 1] * se_v
+
+
+def screen_pixels(pixels, mask, black_level, saturation_level):
+    """Status of pixels (n, 3) before fitting (``SUCCESS``: to be fitted) and the pixels with
+    non-finite values zeroed."""
+    # column by column: NumPy reduces over a last axis of 3 several times slower
+    columns = pixels[:, 0], pixels[:, 1], pixels[:, 2]
+    finite = np.isfinite(columns[0]) & np.isfinite(columns[1]) & np.isfinite(columns[2])
+    negative = (columns[0] < 0) | (columns[1] < 0) | (columns[2] < 0)
+    clean = pixels if finite.all() else np.where(finite[:, None], pixels, 0.0)
+    brightest = np.maximum(np.maximum(clean[:, 0], clean[:, 1]), clean[:, 2])
+    status = np.select(
+        [~finite | negative, brightest < black_level, brightest >= saturation_level],
+        [PixelStatus.BAD_INPUT, PixelStatus.BLACK, PixelStatus.SATURATED],
+        PixelStatus.SUCCESS,
+    ).astype(np.uint8)
+    if mask is not None:
+        mask = np.asarray(mask).reshape(-1)
+        if mask.shape[0] != len(pixels):
+            raise SkinfitInputError(f"mask has {mask.shape[0]} pixels, the image {len(pixels)}")
+        status[(status == 0) & ~(mask > 0)] = PixelStatus.MASKED
+    return status, clean
+
+
+def _solve(table, target, prior, steps, straggler_steps, max_rounds, lm_max_steps, step_tol, reference, size, progress, initial=None):
+    """The spline fit of pixels (n, 3) under the prior rows (n, 4): warm starts (or the roots
+    ``initial`` (n, 2)), lock-step steps, the second branch where it may win, stragglers. ``reference``: the shading (one value or per
+    pixel) that chooses between the fold's branches (None: the median of single-branch pixels).
+    Returns roots, shading, the distance still to go, the root cost, the fitted colour and the
+    normal matrix (n, 3)."""
+    coefficients = jnp.asarray(table.coefficients)
+    spline = lambda count: lambda t, r, d, p: _spline_chunk(coefficients, r, t, d, p, count)  # noqa: E731
+    initial_damping = lambda n: np.full(n, _INITIAL_DAMPING)  # noqa: E731
+    if initial is not None:  # a refit from an earlier fit: its roots, its branch
+        out = map_batches(spline(steps), (target, initial, initial_damping(len(target)), prior), size, progress, "fitting pixels")
+        second, two = initial, np.zeros(len(target), bool)
+    else:
+        first = lambda t, p: _first_pass_chunk(coefficients, table.device_inverse, t, p, steps)  # noqa: E731
+        *out, second, two = map_batches(first, (target, prior), size, progress, "fitting pixels")
+    # The fold's second branch, tried only where the inverse table has one and the first branch's
+    # shading is far from the reference (the branches' shadings differ by 2-5x) or it fits poorly.
+    if reference is None:
+        good = out[1][~two & (out[1] > 0)]
+        reference = float(np.median(good)) if good.size else 1.0
+    reference = np.broadcast_to(np.asarray(reference, dtype=float), out[1].shape)
+    doubtful = np.abs(np.log(np.maximum(out[1], 1e-12) / reference)) > np.log(1.25)
+    retry = np.flatnonzero(two & (doubtful | (out[3] > 1e-2)))
+    if retry.size:
+        other = map_batches(spline(steps), (target[retry], second[retry], initial_damping(retry.size), prior[retry]), _SUBSET_CHUNK)
+        both = [np.stack([a[retry], b]) for a, b in zip(out, other)]  # each (2, len(retry), ...)
+        choice = _choose_branch(both[1], both[3], reference[retry])
+        for full, pair in zip(out, both):
+            full[retry] = pair[choice, np.arange(retry.size)]
+    roots, shading, remaining, residual, fitted, damping, normal = out
+
+    # a colour this far from the model after the first steps is outside the gamut (hair, cloth,
+    # background): it will be OUT_OF_MODEL whatever its last digits, and polishing it would take
+    # most of a real photo's time (such colours converge only linearly)
+    moving = np.flatnonzero((remaining > step_tol) & (residual <= _HOPELESS_RESIDUAL))
+    for _ in range(max_rounds):  # gathered, so that converged pixels cost nothing more
+        if not moving.size:
+            break
+        more = map_batches(spline(straggler_steps), (target[moving], roots[moving], damping[moving], prior[moving]), _SUBSET_CHUNK)
+        for full, part in zip(out, more):
+            full[moving] = part
+        moving = moving[remaining[moving] > step_tol]
+    moving = moving[residual[moving] <= _HOPELESS_RESIDUAL]
+    if moving.size and lm_max_steps:
+        lm = lambda t, r, p: _levenberg_marquardt(coefficients, r, t, p, lm_max_steps, 1e-10, 1e-12)  # noqa: E731
+        lm_roots, lm_ok = map_batches(lm, (target[moving], roots[moving], prior[moving]), pad_size(moving.size, 256))
+        final = map_batches(spline(0), (target[moving], lm_roots, damping[moving], prior[moving]), pad_size(moving.size, 256))
+        for full, part in zip(out, final):
+            full[moving] = part
+        remaining[moving] = np.where(lm_ok, 0.0, np.inf)
+    return out[:5] + [out[6]]
+
+
+#: Relative residual (with the prior rows) beyond which a pixel still moving is not polished
+#: further (CIEDE2000 is then well above 1); it keeps its status MAX_STEPS or OUT_OF_MODEL.
+_HOPELESS_RESIDUAL = 0.03
+
+
+#: Chunk size for the subsets that go round again (second branch, stragglers): one size, so one
+#: compilation whatever the subset's size; small enough that padding wastes little, large enough
+#: to keep dispatch overhead negligible.
+_SUBSET_CHUNK = 2048
+
+
+def _choose_branch(shading, residual, reference) -> np.ndarray:
+    """Per pixel, the branch (0 or 1) that fits and whose shading is nearest the reference
+    (one value or (n,)).
+
+    Inputs (2, n). Branches whose relative residual is within 1 % of the best fit equally well
+    (8-bit quantisation alone leaves residuals of 1e-3); among them the shading decides.
+    """
+    fits = residual <= residual.min(axis=0) + 1e-2
+    distance = np.abs(np.log(np.maximum(shading, 1e-12) / reference))
+    return np.argmin(np.where(fits, distance, np.inf), axis=0)

@@ -1,0 +1,180 @@
+"""Image input and output through OpenImageIO: linear sRGB in, named-channel EXR and PNG out.
+
+Encodings. Integer files (8/16-bit PNG, JPEG, TIFF) are taken as sRGB-encoded and decoded with the
+sRGB transfer function unless their metadata says linear; half and float data (EXR, float TIFF) are
+taken as linear. ``input_space`` overrides this: ``"srgb"``, ``"linear"`` (linear sRGB primaries),
+or the name of any colour-science RGB colourspace (``"Display P3"``, ``"Adobe RGB (1998)"``,
+``"ACEScg"``, ...), decoded with that space's transfer function and converted to linear sRGB
+(Bradford adaptation where the white points differ). Channels are found by name (R, G, B and
+optionally A), not by position.
+"""
+
+from __future__ import annotations
+
+import os
+import tempfile
+from pathlib import Path
+
+import numpy as np
+
+from .._validate import SkinfitInputError
+from ..colorimetry import srgb_decode
+
+
+def _oiio():
+    import OpenImageIO as oiio
+
+    return oiio
+
+
+def read_linear_rgb(path: str | os.PathLike, input_space: str | None = None) -> tuple[np.ndarray, np.ndarray | None]:
+    """Read an image as linear sRGB, (h, w, 3) float64, and its alpha (h, w) or None."""
+    path = Path(path)
+    spec, pixels = _read_pixels(path)
+    names = [name.upper() for name in spec.channelnames]
+    index = {}
+    for channel in ("R", "G", "B", "A"):
+        matches = [i for i, name in enumerate(names) if name == channel or name.endswith("." + channel)]
+        if matches:
+            index[channel] = matches[0]
+    if not all(c in index for c in "RGB"):
+        if spec.nchannels in (3, 4) and not any(name in ("R", "G", "B") for name in names):
+            index = {"R": 0, "G": 1, "B": 2, **({"A": 3} if spec.nchannels == 4 else {})}  # unnamed channels
+        else:
+            raise SkinfitInputError(
+                f"{path} has channels {', '.join(spec.channelnames)}; an R, G and B channel are needed"
+            )
+    rgb = pixels[..., [index["R"], index["G"], index["B"]]]
+    alpha = pixels[..., index["A"]] if "A" in index else None
+
+    space = input_space or _default_space(spec)
+    return to_linear_srgb(rgb, space), alpha
+
+
+def read_mask(path: str | os.PathLike) -> np.ndarray:
+    """Read a mask image as (h, w) floats in [0, 1] (0: not fitted), whatever its channels and bit
+    depth: its alpha channel if it has one, else its only channel (``Y``, ``A`` or unnamed), else the
+    largest of its channels. Integer files are scaled to [0, 1]; no transfer function is applied."""
+    path = Path(path)
+    spec, pixels = _read_pixels(path)
+    names = [name.upper() for name in spec.channelnames]
+    alpha = [i for i, name in enumerate(names) if name == "A" or name.endswith(".A")]
+    if alpha and spec.nchannels > 1:
+        return pixels[..., alpha[0]]
+    return pixels.max(axis=-1)
+
+
+def _default_space(spec) -> str:
+    declared = (spec.get_string_attribute("oiio:ColorSpace") or "").lower()
+    if "linear" in declared or "scene_linear" in declared:
+        return "linear"
+    if "srgb" in declared:
+        return "srgb"
+    return "linear" if spec.format.basetype in (_oiio().HALF, _oiio().FLOAT, _oiio().DOUBLE) else "srgb"
+
+
+def to_linear_srgb(rgb: np.ndarray, space: str) -> np.ndarray:
+    """Convert RGB in ``space`` (see the module docstring) to linear sRGB."""
+    import colour
+
+
+    key = space.lower()
+    if key == "linear":
+        return rgb
+    if key == "srgb":
+        return np.asarray(srgb_decode(rgb))
+    if space not in colour.RGB_COLOURSPACES:
+        raise SkinfitInputError(
+            f"unknown input space {space!r}: use srgb, linear or a colour-science RGB colourspace name"
+        )
+    converted = colour.RGB_to_RGB(
+        rgb, colour.RGB_COLOURSPACES[space], colour.RGB_COLOURSPACES["sRGB"], apply_cctf_decoding=True
+    )
+    return np.asarray(converted, dtype=np.float64)
+
+
+def write_exr(path: str | os.PathLike, channels: dict[str, np.ndarray], attributes: dict[str, str] | None = None) -> None:
+    """Write (h, w) float maps as one EXR with the given channel names (float32, zip)."""
+    oiio = _oiio()
+    names = list(channels)
+    h, w = np.shape(channels[names[0]])[:2]
+    spec = oiio.ImageSpec(w, h, len(names), oiio.FLOAT)
+    spec.channelnames = tuple(names)
+    spec.attribute("compression", "zip")
+    for key, value in (attributes or {}).items():
+        spec.attribute(key, str(value))
+
+    def band(top, bottom):  # interleaved float32 rows: a 4096 x 4096 image is never stacked whole
+        return np.stack([np.asarray(channels[n][top:bottom], dtype=np.float32) for n in names], axis=-1)
+
+    _write(path, spec, band, h)
+
+
+def read_exr_channels(path: str | os.PathLike) -> tuple[dict[str, np.ndarray], dict[str, str]]:
+    """Channels of an EXR by name, and its string attributes."""
+    spec, data = _read_pixels(Path(path))
+    attributes = {p.name: str(p.value) for p in spec.extra_attribs}
+    return {name: data[..., i] for i, name in enumerate(spec.channelnames)}, attributes
+
+
+def _read_pixels(path: Path):
+    """(spec, pixels (h, w, channels) float64) of the first subimage; unreadable files raise
+    ``SkinfitInputError``."""
+    oiio = _oiio()
+    image = oiio.ImageInput.open(str(path))
+    if image is None:
+        raise SkinfitInputError(f"cannot read image {path}: {oiio.geterror() or 'unknown format'}")
+    try:
+        spec = image.spec()
+        pixels = image.read_image(0, 0, 0, spec.nchannels, oiio.FLOAT)
+        if pixels is None:
+            raise SkinfitInputError(f"cannot read pixels of {path}: {image.geterror()}")
+    finally:
+        image.close()
+    pixels = np.asarray(pixels, dtype=np.float64).reshape(spec.height, spec.width, spec.nchannels)
+    if pixels.size == 0:
+        raise SkinfitInputError(f"{path} is empty")
+    return spec, pixels
+
+
+def write_png(path: str | os.PathLike, encoded_rgb: np.ndarray, bits: int = 8) -> None:
+    """Write encoded values in [0, 1] (h, w, 3) as an 8- or 16-bit PNG."""
+    oiio = _oiio()
+    if bits not in (8, 16):
+        raise SkinfitInputError(f"PNG bits must be 8 or 16, got {bits}")
+    top, dtype, fmt = (255.0, np.uint8, oiio.UINT8) if bits == 8 else (65535.0, np.uint16, oiio.UINT16)
+    h, w, channels = np.shape(encoded_rgb)
+    spec = oiio.ImageSpec(w, h, channels, fmt)
+
+    def band(first, last):
+        return np.round(np.clip(encoded_rgb[first:last], 0.0, 1.0) * top).astype(dtype)
+
+    _write(path, spec, band, h)
+
+
+#: Rows per band of ``_write``.
+_WRITE_ROWS = 256
+
+
+def _write(path, spec, band, height: int) -> None:
+    """Write the rows ``band(top, bottom)`` gives, ``_WRITE_ROWS`` at a time, through a temporary file
+    and rename, so that an interrupted run leaves no partial file and no whole-image copy is made."""
+    oiio = _oiio()
+    path = Path(path)
+    handle, temp = tempfile.mkstemp(suffix=path.suffix, dir=path.parent)
+    os.close(handle)
+    try:
+        out = oiio.ImageOutput.create(temp)
+        if out is None or not out.open(temp, spec):
+            raise OSError(f"cannot write {path}: {oiio.geterror()}")
+        ok = True
+        for top in range(0, height, _WRITE_ROWS):
+            bottom = min(top + _WRITE_ROWS, height)
+            ok = ok and out.write_scanlines(top, bottom, 0, np.ascontiguousarray(band(top, bottom)))
+        out.close()
+        if not ok:
+            raise OSError(f"cannot write {path}: {out.geterror()}")
+        os.replace(temp, path)
+    finally:
+        if os.path.exists(temp):
+            os.remove(temp)

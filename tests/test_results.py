@@ -1,0 +1,93 @@
+"""Saved benchmark results and the code they describe.
+
+Every file in ``benchmarks/results/`` records when and where it was made. A file that records the
+commit it was made at is compared with the code it depends on: where that code changed after the
+commit, the test warns (``StaleResultWarning``, shown in the test summary) that the file should be
+regenerated with its script. A file with no commit warns too.
+"""
+
+import json
+import subprocess
+import warnings
+from pathlib import Path
+
+import pytest
+
+ROOT = Path(__file__).resolve().parent.parent
+RESULTS = ROOT / "benchmarks" / "results"
+
+# results file -> (the script that writes it, the code its numbers depend on)
+DEPENDS_ON = {
+    "calibration.json": ("benchmarks/calibrate_model.py", ["skinfit/model", "skinfit/fit"]),
+    "fit_image.json": ("benchmarks/fit_image.py", ["skinfit/fit", "skinfit/colorimetry"]),
+    "fit_measured.json": ("benchmarks/fit_measured.py", ["skinfit/model", "skinfit/fit"]),
+    "fit_noise.json": ("benchmarks/fit_noise.py", ["skinfit/model", "skinfit/fit"]),
+    "fit_photos.json": ("benchmarks/fit_photos.py", ["skinfit/fit", "skinfit/colorimetry", "skinfit/io"]),
+    "fit_spectra.json": ("benchmarks/fit_spectra.py", ["skinfit/model", "skinfit/fit"]),
+    "forward_model.json": ("benchmarks/forward_model.py", ["skinfit/model", "skinfit/export/_profile_tables.py"]),
+    "medium_table.json": ("benchmarks/build_medium_table.py", ["skinfit/model", "skinfit/export/_media.py"]),
+    "renderers.json": ("benchmarks/renderers.py", ["skinfit/model", "skinfit/export"]),
+    "transport_fit.json": ("benchmarks/transport_fit.py", ["skinfit/model", "skinfit/fit"]),
+    "transport_fit_h100.json": ("benchmarks/transport_fit.py", ["skinfit/model", "skinfit/fit"]),
+    "transport_table.json": ("benchmarks/build_transport_table.py", ["skinfit/model/_transport.py", "skinfit/model/_transport_table.py"]),
+}
+
+
+class StaleResultWarning(UserWarning):
+    """A saved result may no longer describe the code."""
+
+
+def _git(*args) -> str:
+    return subprocess.run(["git", *args], cwd=ROOT, capture_output=True, text=True, check=True).stdout.strip()
+
+
+def recorded_commit(record: dict) -> str | None:
+    """The commit a results file was made at (its ``git_commit`` or ``commit``, without the dirty mark)."""
+    commit = record.get("git_commit") or record.get("commit")
+    return commit.split()[0].removesuffix("-dirty") if commit and commit != "unknown" else None
+
+
+def changed_since(commit: str, paths: list[str]) -> list[str]:
+    """The files among ``paths`` (files or folders) that commits after ``commit`` changed."""
+    return [line for line in _git("log", "--format=", "--name-only", f"{commit}..HEAD", "--", *paths).splitlines() if line]
+
+
+def test_every_results_file_is_listed_and_says_when_and_where_it_was_made():
+    saved = {p.name for p in RESULTS.glob("*.json")}
+    assert saved == set(DEPENDS_ON), f"list new results files in DEPENDS_ON: {sorted(saved ^ set(DEPENDS_ON))}"
+    for name, (script, _) in DEPENDS_ON.items():
+        record = json.loads((RESULTS / name).read_text())
+        assert record.get("date") and record.get("machine"), name
+        assert (ROOT / script).is_file(), script
+
+
+def test_saved_results_warn_when_their_code_changed_after_them():
+    try:
+        _git("rev-parse", "HEAD")
+    except (OSError, subprocess.CalledProcessError):
+        pytest.skip("not a git checkout")
+    for name, (script, paths) in DEPENDS_ON.items():
+        commit = recorded_commit(json.loads((RESULTS / name).read_text()))
+        if commit is None:
+            warnings.warn(f"{name} records no commit: regenerate it with {script}", StaleResultWarning)
+            continue
+        try:
+            changed = changed_since(commit, paths)
+        except subprocess.CalledProcessError:
+            warnings.warn(f"{name}: commit {commit[:10]} is not in this clone's history", StaleResultWarning)
+            continue
+        if changed:
+            warnings.warn(f"{name} ({commit[:10]}) predates changes to {len(set(changed))} of its files "
+                          f"(e.g. {sorted(set(changed))[0]}): regenerate it with {script}", StaleResultWarning)
+
+
+def test_the_staleness_check_sees_a_change():
+    # the mechanism can fail: from the repository's first commit, the model has changed
+    try:
+        first = _git("rev-list", "--max-parents=0", "HEAD").splitlines()[0]
+    except (OSError, subprocess.CalledProcessError, IndexError):
+        pytest.skip("not a git checkout")
+    assert changed_since(first, ["skinfit"])
+    assert changed_since(_git("rev-parse", "HEAD"), ["skinfit"]) == []
+    assert recorded_commit({"git_commit": "abc123 (working tree modified)"}) == "abc123"
+    assert recorded_commit({"commit": "b4fceff-dirty"}) == "b4fceff"
