@@ -77,11 +77,12 @@ def _significant(shown: str) -> int:
     return len(digits.rstrip("0")) if "." not in shown else len(digits)
 
 
-def _holds(values: list[float], shown: str) -> bool:
+def _holds(values: list[float], shown: str, strict: bool = True) -> bool:
     """A value that rounds to the number as shown (also scaled to %, ms or us); a number
-    of one significant digit (3, 0.5, 100) matches too much to say anything and never holds."""
+    of one significant digit (3, 0.5, 100) matches too much to say anything: it holds only where
+    the paragraph names its source (``strict=False``)."""
     x = _parse(shown)
-    if x is None or _significant(shown) < 2:
+    if x is None or (strict and _significant(shown) < 2):
         return False
     decimals = len(shown.split(".")[1].split("e")[0]) if "." in shown else 0
     tolerance = 0.5 * 10.0 ** (-decimals) * (1 + 1e-9)
@@ -145,7 +146,7 @@ def classify(path: Path, results: dict[str, list[float]]) -> list[tuple[int, str
                 kind, where = "one-off", ""
             elif source:
                 values = [v for name in source for v in results.get(name, [])]
-                kind, where = ("sourced", " ".join(source)) if _holds(values, shown) else ("mismatch", " ".join(source))
+                kind, where = ("sourced", " ".join(source)) if _holds(values, shown, strict=False) else ("mismatch", " ".join(source))
             else:
                 holders = [f for f, values in results.items() if _holds(values, shown)]
                 kind, where = ("found", holders[0]) if holders else ("orphan", "")
