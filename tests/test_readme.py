@@ -76,3 +76,8 @@ def test_readme_real_input_table_is_the_saved_benchmark_output():
 def test_readme_renderer_table_is_the_saved_benchmark_output():
     block = _block("renderers")
     assert block == (ROOT / "benchmarks" / "results" / "renderers.md").read_text().strip()
+
+
+def test_forward_model_table_is_the_saved_benchmark_output():
+    block = _block("forward-model")
+    assert block == (ROOT / "benchmarks" / "results" / "forward_model.md").read_text().strip()
