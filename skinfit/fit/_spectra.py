@@ -263,7 +263,7 @@ def _fit_transport(measurement, lam, w, target, settings, chunk_size, progress):
     wavelengths, weights = tuple(lam.tolist()), tuple(w.tolist())
     diffusion = measurement.as_diffusion()
     u, steps, _ = _solver(diffusion.static_key, wavelengths, weights, settings).run(diffusion, target, chunk_size, progress)
-    theta = np.stack([np.asarray(from_unbounded(name, u[:, i])) for i, name in enumerate(measurement.free)], axis=1)
+    theta = np.stack([from_unbounded(name, np.asarray(u[:, i])) for i, name in enumerate(measurement.free)], axis=1)
     polish = bounded_polish(measurement.free, wavelengths, weights, settings.step_tol, settings.stationarity_tol)
     theta, more, converged = polish.run(measurement, theta, target, settings.transport_steps, chunk_size, progress)
     u = np.stack([to_unbounded(name, theta[:, i]) for i, name in enumerate(measurement.free)], axis=1)
@@ -444,7 +444,7 @@ class _Solver:
             done[todo] = self.diagnostics(measurement, u[todo], target[todo], _GATHERED_BATCH, fixed_batch=True)[2] <= s.stationarity_tol
         todo = np.flatnonzero(~done)
         if todo.size and s.polish_steps:  # bounded quasi-Newton for what Gauss-Newton left
-            theta = np.stack([np.asarray(from_unbounded(n, u[todo, i])) for i, n in enumerate(measurement.free)], axis=1)
+            theta = np.stack([from_unbounded(n, np.asarray(u[todo, i])) for i, n in enumerate(measurement.free)], axis=1)
             polish = bounded_polish(measurement.free, self.wavelengths, tuple(np.asarray(self.w).tolist()), s.step_tol, s.stationarity_tol)
             theta, more, done[todo] = polish.run(measurement, theta, target[todo], s.polish_steps, _GATHERED_BATCH, False, fixed_batch=True)
             u[todo] = np.stack([to_unbounded(n, theta[:, i]) for i, n in enumerate(measurement.free)], axis=1)

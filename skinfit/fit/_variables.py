@@ -112,9 +112,11 @@ def to_unbounded(name: str, value):
 
 
 def from_unbounded(name: str, u):
-    """Physical value of variable ``name`` from its unbounded coordinate ``u``."""
+    """Physical value of variable ``name`` from its unbounded coordinate ``u`` (NumPy in, NumPy out:
+    eager JAX on results would compile each primitive for every new batch shape)."""
     var = VARIABLES[name]
-    return var.low + (var.high - var.low) * 0.5 * (1.0 + jnp.sin(u))
+    xp = np if isinstance(u, (np.ndarray, float)) else jnp
+    return var.low + (var.high - var.low) * 0.5 * (1.0 + xp.sin(u))
 
 
 def prior_coordinate(name: str, value):
