@@ -144,7 +144,26 @@ def main(argv=None):
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     (out / "fit_image.json").write_text(json.dumps(result, indent=2))
+    (out / "fit_image.md").write_text(markdown(result) + "\n")
     print(json.dumps(result, indent=2))
+
+
+def markdown(result: dict) -> str:
+    """The docs table (docs/fitting-images.md, kept equal to fit_image.md by tests/test_readme.py)."""
+    def errors(path, name):
+        e = result[path]["error_vs_full_least_squares"][name]
+        return "(the reference)" if path == "with_exact_polish" else f"{e['median']:.1e} / {e['p99']:.1e}"
+
+    rows = [("table only (warm start, no iteration)", "table_only"), ("warm start + polish (`fit_pixels`, no priors)", "warm_start_and_polish"),
+            ("+ exact polish (`--exact-steps 2`)", "with_exact_polish")]
+    lines = [f"Measured {result['date']} on {result['machine']} (commit {result['git_commit'][:10]}), {result['image']}.", "",
+             "| path | s per megapixel | pixels SUCCESS | melanin error | haemoglobin error |", "|---|---|---|---|---|"]
+    for label, path in rows:
+        s = result[path]
+        success = "(not iterated)" if path == "table_only" else f"{100 * s['success_fraction']:.1f} %"
+        lines.append(f"| {label} | {s['s_per_megapixel']:.3g} | {success} | {errors(path, 'melanin')} | {errors(path, 'haemoglobin')} |")
+    lines.append(f"| `scipy.optimize.least_squares` per pixel, NumPy model | {result['scipy_least_squares']['s_per_megapixel']:,.0f} | | | |")
+    return "\n".join(lines)
 
 
 def peak_memory(rgb, size):

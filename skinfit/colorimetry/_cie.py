@@ -197,7 +197,7 @@ def delta_e2000(lab_1: ArrayLike, lab_2: ArrayLike) -> Float[Array, "..."]:
     """CIEDE2000 colour difference between L*a*b* colours (..., 3) (Sharma, Wu & Dalal 2005).
 
     Written in JAX so that image fits compute it inside their compiled chunks; checked against
-    colour-science's ``delta_E(method="CIE 2000")`` in ``tests/test_colorimetry.py``.
+    colour-science's ``delta_E(method="CIE 2000")`` in ``tests/colorimetry/test_cie.py``.
     """
     lab_1, lab_2 = jnp.asarray(lab_1), jnp.asarray(lab_2)
     l1, a1, b1 = lab_1[..., 0], lab_1[..., 1], lab_1[..., 2]

@@ -10,7 +10,7 @@ in them since it is smooth in C_m and C_h). Each node stores the exact colour an
 and mixed derivatives (forward-mode autodiff of the model), and each cell holds the bicubic
 Hermite patch through its four corners: C^1 across cells, interpolation error O(h^4). On the
 default 129 x 129 grid the spline matches the model to ~1e-9 in linear sRGB (measured in
-``tests/test_colour_table.py``), far below 16-bit quantisation, at the cost of a few hundred flops
+``tests/colorimetry/test_colour_table.py``), far below 16-bit quantisation, at the cost of a few hundred flops
 per evaluation instead of the ~31-wavelength model.
 
 The inverse: a grid over chromaticity (r, g) / (r + g + b) stores, per cell, two warm starts (u, v):
@@ -54,7 +54,7 @@ HAEMOGLOBIN_MAX = 0.15
 _AFFINE_REACH = 0.3
 
 #: Spline nodes per axis of a transport table, whose node derivatives come from an interpolating
-#: spline (error against exact transport measured in tests/test_colour_table.py).
+#: spline (error against exact transport measured in tests/colorimetry/test_colour_table.py).
 TRANSPORT_NODES = 33
 
 #: Wavelengths of the colour integral (nm).
