@@ -81,3 +81,8 @@ def test_readme_renderer_table_is_the_saved_benchmark_output():
 def test_forward_model_table_is_the_saved_benchmark_output():
     block = _block("forward-model")
     assert block == (ROOT / "benchmarks" / "results" / "forward_model.md").read_text().strip()
+
+
+def test_image_solver_table_is_the_saved_benchmark_output():
+    block = _block("fit-image")
+    assert block == (ROOT / "benchmarks" / "results" / "fit_image.md").read_text().strip()
