@@ -14,12 +14,16 @@ classified by where it stands:
 - ``code``: in code (commands, examples, inputs), not a result;
 - ``one-off``: in a paragraph marked "One-off observation" with its date: a figure no script
   reproduces, kept as what it is;
+- ``definition``: listed in a ``<!-- defines: 400 700 10 -->`` comment of its paragraph: an input, a
+  setting, a threshold, a bound, a version or a constant of a formula, which the text defines rather
+  than reports (a listed number that the paragraph does not hold is a ``mismatch``: the mark is stale);
 - ``reference``: a citation (year, volume, pages, DOI) or a section of the model notes, which carry
   their sources inline (``docs/model-notes.md`` is the model's reference notes);
-- ``found``: not attributed, but equal (to the precision shown, two significant digits or more) to a
-  value in some results file: a candidate source, not a proof;
-- ``orphan``: none of these. A published figure should become generated or sourced, or be marked as
-  a one-off observation with its date.
+- ``orphan``: none of these. A published figure should become generated or sourced, be marked as a
+  one-off observation with its date, or be marked as a definition. The listing names a results file
+  that holds an equal value (to the precision shown, two significant digits or more) as a candidate
+  source: a hint, not an attribution (a results file with thousands of values matches almost
+  anything).
 """
 
 from __future__ import annotations
@@ -34,7 +38,7 @@ ROOT = Path(__file__).resolve().parents[1]
 RESULTS = ROOT / "benchmarks" / "results"
 NUMBER = re.compile(r"(?<![\w.])[-+]?\d+(?:[.,]\d+)*(?:\.\d+)?(?:e[-+]?\d+)?(?![\d.,]\d)", re.I)
 CITATION = re.compile(r"(DOI|doi\.org|SIGGRAPH|EGSR|Phys\. Med|Opt\. Lett|Scientific Data|Color Res|Photochem|"
-                      r"OMLC|https?://|et al\.|\(\d{4}\)|\b(19|20)\d{2}\b)")
+                      r"OMLC|https?://|et al\.|\(\d{4}\)|\b(19|20)\d{2}\b|\bIEC |\bISO |\bITU)")
 
 
 def _values(node, out: list[float]) -> list[float]:
@@ -57,6 +61,8 @@ def _values(node, out: list[float]) -> list[float]:
 def _results() -> dict[str, list[float]]:
     files = {}
     for path in sorted(RESULTS.rglob("*")):
+        if path.name == "numbers.md":  # this census's own output
+            continue
         if path.suffix == ".json":
             files[str(path.relative_to(ROOT))] = _values(json.loads(path.read_text()), [])
         elif path.suffix in (".md", ".csv"):
@@ -86,10 +92,12 @@ def _holds(values: list[float], shown: str, strict: bool = True) -> bool:
         return False
     decimals = len(shown.split(".")[1].split("e")[0]) if "." in shown else 0
     tolerance = 0.5 * 10.0 ** (-decimals) * (1 + 1e-9)
-    if "e" in shown.lower():
-        tolerance = abs(x) * 0.05
+    if "e" in shown.lower():  # half a unit of the mantissa's last digit
+        mantissa, exponent = shown.lower().split("e")
+        shown_decimals = len(mantissa.split(".")[1]) if "." in mantissa else 0
+        tolerance = 0.5 * 10.0 ** (int(exponent) - shown_decimals) * (1 + 1e-9)
     for v in values:
-        for scaled in (v, 100 * v, v / 100, 1e3 * v, 1e6 * v):  # also as %, ms, us
+        for scaled in (v, 100 * v, v / 100, 1e3 * v, 1e6 * v, v / 1e3):  # also as %, ms, us (and us as ms)
             if abs(scaled - x) <= tolerance:
                 return True
     return False
@@ -113,11 +121,13 @@ def classify(path: Path, results: dict[str, list[float]]) -> list[tuple[int, str
     model_notes = path.name == "model-notes.md"
     lines = path.read_text().splitlines()
     paragraph = _paragraphs(lines)
-    sources, one_off = {}, set()
+    sources, one_off, defines = {}, set(), {}
     for k, line in enumerate(lines):
         named = re.search(r"<!-- source: ([^>]+?) -->", line)
         if named:
             sources[paragraph[k]] = named.group(1).split()
+        for listed in re.findall(r"<!-- defines: ([^>]+?) -->", line):
+            defines.setdefault(paragraph[k], Counter()).update(listed.split())
         if "one-off" in line.lower():  # "*One-off observation (date, ...)*", possibly broken over lines
             one_off.add(paragraph[k])
     for i, line in enumerate(lines, 1):
@@ -144,13 +154,21 @@ def classify(path: Path, results: dict[str, list[float]]) -> list[tuple[int, str
                 kind, where = "reference", ""
             elif paragraph[i - 1] in one_off:
                 kind, where = "one-off", ""
+            elif defines.get(paragraph[i - 1], Counter())[shown] > 0:
+                defines[paragraph[i - 1]][shown] -= 1  # each listed entry defines one occurrence
+                kind, where = "definition", ""
             elif source:
                 values = [v for name in source for v in results.get(name, [])]
                 kind, where = ("sourced", " ".join(source)) if _holds(values, shown, strict=False) else ("mismatch", " ".join(source))
             else:
                 holders = [f for f, values in results.items() if _holds(values, shown)]
-                kind, where = ("found", holders[0]) if holders else ("orphan", "")
+                kind, where = "orphan", (f"candidate {holders[0]}" if holders else "")
             found.append((i, shown, kind, where))
+    first_line = {}
+    for k in range(len(lines)):
+        first_line.setdefault(paragraph[k], k + 1)
+    for index, left in defines.items():  # listed but not in the paragraph: a stale mark
+        found += [(first_line[index], shown, "mismatch", "defines") for shown, n in left.items() for _ in range(n)]
     return found
 
 
@@ -168,17 +186,18 @@ def main(argv=None) -> int:
         counts = Counter(kind for _, _, kind, _ in entries)
         total += counts
         rows.append((page.relative_to(ROOT), counts))
-        orphans += [(page.relative_to(ROOT), line, shown) for line, shown, kind, _ in entries if kind in ("orphan", "mismatch")]
-    kinds = ("generated", "sourced", "one-off", "found", "code", "reference", "mismatch", "orphan")
+        orphans += [(page.relative_to(ROOT), line, shown, kind, where) for line, shown, kind, where in entries
+                    if kind in ("orphan", "mismatch")]
+    kinds = ("generated", "sourced", "one-off", "definition", "code", "reference", "mismatch", "orphan")
     lines = ["| page | " + " | ".join(kinds) + " |", "|---|" + "---|" * len(kinds)]
     lines += [f"| {page} | " + " | ".join(str(c[k]) for k in kinds) + " |" for page, c in rows]
     lines += ["| all | " + " | ".join(str(total[k]) for k in kinds) + " |"]
-    text = "\n".join(lines) + "\n\n" + "\n".join(f"- {page}:{line}: {shown}" for page, line, shown in orphans) + "\n"
+    text = "\n".join(lines) + "\n\n" + "\n".join(f"- {page}:{line}: {shown} ({kind}{', ' + where if where else ''})" for page, line, shown, kind, where in orphans) + "\n"
     Path(args.out).write_text("# Numbers in the README and docs, by source (python -m benchmarks.numbers)\n\n" + text)
     print("\n".join(lines))
     if args.orphans:
-        for page, line, shown in orphans:
-            print(f"{page}:{line}: {shown}")
+        for page, line, shown, kind, where in orphans:
+            print(f"{page}:{line}: {shown} ({kind}{', ' + where if where else ''})")
     print(f"wrote {args.out}")
     return 0
 

@@ -64,9 +64,14 @@ def test_the_numbers_census_attributes_what_it_can_and_lists_the_rest(tmp_path):
         "Fits took 12.3 s and reached 99.2 %. <!-- source: benchmarks/results/x.json -->\n\n"
         "A claim of 0.52 with no source.\n\n"
         "`skinfit demo --radii 0.001:20:256`\n\n"
-        "Named but wrong: 4.56 <!-- source: benchmarks/results/x.json -->\n"
+        "Named but wrong: 4.56 <!-- source: benchmarks/results/x.json -->\n\n"
+        "Spectra at 400-700 nm reached 12.34 in a candidate file. <!-- defines: 400 700 9 -->\n"
     )
     got = {(shown, kind) for _, shown, kind, _ in numbers.classify(page, results)}
     assert ("7.25", "generated") in got and ("12.3", "sourced") in got and ("99.2", "sourced") in got
     assert ("0.52", "orphan") in got and ("4.56", "mismatch") in got and ("0.001:20:256", "code") not in got
+    assert ("400", "definition") in got and ("700", "definition") in got
+    # an equal value in some results file is a hint, not an attribution; a listed number the
+    # paragraph does not hold is a stale mark
+    assert ("12.34", "orphan") in got and ("9", "mismatch") in got
     assert all(kind == "code" for shown, kind in got if shown in ("0.001", "20", "256"))
