@@ -93,9 +93,7 @@ def _holds(values: list[float], shown: str, strict: bool = True) -> bool:
     decimals = len(shown.split(".")[1].split("e")[0]) if "." in shown else 0
     tolerance = 0.5 * 10.0 ** (-decimals) * (1 + 1e-9)
     if "e" in shown.lower():  # half a unit of the mantissa's last digit
-        mantissa, exponent = shown.lower().split("e")
-        shown_decimals = len(mantissa.split(".")[1]) if "." in mantissa else 0
-        tolerance = 0.5 * 10.0 ** (int(exponent) - shown_decimals) * (1 + 1e-9)
+        tolerance *= 10.0 ** int(shown.lower().split("e")[1])
     for v in values:
         for scaled in (v, 100 * v, v / 100, 1e3 * v, 1e6 * v, v / 1e3):  # also as %, ms, us (and us as ms)
             if abs(scaled - x) <= tolerance:
@@ -121,8 +119,9 @@ def classify(path: Path, results: dict[str, list[float]]) -> list[tuple[int, str
     model_notes = path.name == "model-notes.md"
     lines = path.read_text().splitlines()
     paragraph = _paragraphs(lines)
-    sources, one_off, defines = {}, set(), {}
+    sources, one_off, defines, first_line = {}, set(), {}, {}
     for k, line in enumerate(lines):
+        first_line.setdefault(paragraph[k], k + 1)
         named = re.search(r"<!-- source: ([^>]+?) -->", line)
         if named:
             sources[paragraph[k]] = named.group(1).split()
@@ -164,12 +163,13 @@ def classify(path: Path, results: dict[str, list[float]]) -> list[tuple[int, str
                 holders = [f for f, values in results.items() if _holds(values, shown)]
                 kind, where = "orphan", (f"candidate {holders[0]}" if holders else "")
             found.append((i, shown, kind, where))
-    first_line = {}
-    for k in range(len(lines)):
-        first_line.setdefault(paragraph[k], k + 1)
     for index, left in defines.items():  # listed but not in the paragraph: a stale mark
         found += [(first_line[index], shown, "mismatch", "defines") for shown, n in left.items() for _ in range(n)]
     return found
+
+
+def _listing(page, line, shown, kind, where) -> str:
+    return f"{page}:{line}: {shown} ({kind}{', ' + where if where else ''})"
 
 
 def main(argv=None) -> int:
@@ -192,12 +192,12 @@ def main(argv=None) -> int:
     lines = ["| page | " + " | ".join(kinds) + " |", "|---|" + "---|" * len(kinds)]
     lines += [f"| {page} | " + " | ".join(str(c[k]) for k in kinds) + " |" for page, c in rows]
     lines += ["| all | " + " | ".join(str(total[k]) for k in kinds) + " |"]
-    text = "\n".join(lines) + "\n\n" + "\n".join(f"- {page}:{line}: {shown} ({kind}{', ' + where if where else ''})" for page, line, shown, kind, where in orphans) + "\n"
+    text = "\n".join(lines) + "\n\n" + "\n".join("- " + _listing(*entry) for entry in orphans) + "\n"
     Path(args.out).write_text("# Numbers in the README and docs, by source (python -m benchmarks.numbers)\n\n" + text)
     print("\n".join(lines))
     if args.orphans:
-        for page, line, shown, kind, where in orphans:
-            print(f"{page}:{line}: {shown} ({kind}{', ' + where if where else ''})")
+        for entry in orphans:
+            print(_listing(*entry))
     print(f"wrote {args.out}")
     return 0
 
