@@ -15,6 +15,15 @@ Cross-validation: subjects (origin, subject) in ``--folds`` folds; each fold's s
 through ``skinfit.fit_spectra`` with constants calibrated without it. Writes
 ``benchmarks/results/calibration.json`` and, with ``--write-model``, ``spectra/calibrated_model.json``
 (the constants, their standard errors, the population prior, and this record).
+
+    python -m benchmarks.calibrate_model --check
+
+recalibrates on the current code without touching the shipped model or its record, and writes
+``benchmarks/results/calibration_check.json``: each constant beside the shipped one, their difference
+in units of the shipped subject-robust standard error, and the cross-validated errors of both runs.
+The outer problem is flat along the epidermis's scattering (the fold constants spread by several
+standard errors), so a rerun on changed code is expected to land within the standard errors, not on
+the same digits: this is the check that the shipped model is reproducible to its stated uncertainty.
 """
 
 from __future__ import annotations
@@ -29,6 +38,7 @@ from pathlib import Path
 import numpy as np
 
 import skinfit
+from benchmarks._record import provenance
 from skinfit.fit import DEFAULT_CONSTANTS, FitStatus, calibrate_model, on_a_bound
 from skinfit.io import FACE_SITES, read_issa, read_nist
 
@@ -209,6 +219,42 @@ def write_summary(record: dict) -> None:
     (RESULTS / "calibration_summary.md").write_text(summary_markdown(record), encoding="utf-8")
 
 
+def write_check(calibration, folds: int) -> dict:
+    """Compare a recalibration on the current code with the shipped model (``--check``)."""
+    shipped = json.loads((RESULTS / "calibration.json").read_text(encoding="utf-8"))
+    cv = calibration.record().get("cross_validation")
+    constants = {}
+    for name, value in calibration.constants.items():
+        se = shipped["standard_errors"][name]
+        constants[name] = {"shipped": shipped["constants"][name], "recalibrated": value,
+                           "shipped_standard_error": se, "recalibrated_standard_error": calibration.standard_errors[name],
+                           "difference_in_standard_errors": (value - shipped["constants"][name]) / se}
+    held_out = {}
+    for part in ("with_prior", "maximum_likelihood"):
+        if cv is not None:
+            held_out[part] = {k: {"shipped": shipped["cross_validation"][part][k], "recalibrated": cv[part][k]}
+                              for k in ("delta_e2000_median", "delta_e2000_p95", "rms_median", "max_steps", "success_fraction")}
+    record = {
+        **provenance(),
+        "shipped_model_made_at": shipped["commit"],
+        "spectra": int(len(calibration.fit.status)),
+        "outer_steps": len(calibration.history),
+        "outer_cost": {"shipped": shipped["outer_cost"][-1], "recalibrated": calibration.history[-1]},
+        "folds": folds,
+        "calibration_seconds": calibration.seconds,
+        "constants": constants,
+        "max_abs_difference_in_standard_errors": max(abs(c["difference_in_standard_errors"]) for c in constants.values()),
+        "held_out": held_out,
+        "reproduce": "python -m benchmarks.calibrate_model --check",
+    }
+    path = RESULTS / "calibration_check.json"
+    path.write_text(json.dumps(record, indent=2) + "\n", encoding="utf-8")
+    for name, c in constants.items():
+        print(f"  {name:36s} shipped {c['shipped']:.5g}, now {c['recalibrated']:.5g} ({c['difference_in_standard_errors']:+.2f} s.e.)")
+    print(f"wrote {path}")
+    return record
+
+
 def main(argv=None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--data", default=str(ROOT.parent / "shared" / "data"), help="the shared data folder")
@@ -218,6 +264,8 @@ def main(argv=None) -> int:
     parser.add_argument("--write-model", action="store_true", help="write spectra/calibrated_model.json")
     parser.add_argument("--model-out", default=None, help="also write the model to this JSON file")
     parser.add_argument("--report-only", action="store_true", help="only redo the report of the shipped model (no calibration)")
+    parser.add_argument("--check", action="store_true",
+                        help="recalibrate on the current code and compare with the shipped model (writes calibration_check.json only)")
     args = parser.parse_args(argv)
     data = Path(args.data)
 
@@ -243,6 +291,9 @@ def main(argv=None) -> int:
     for name, value in calibration.constants.items():
         print(f"  {name:36s} {value:10.5g} +- {calibration.standard_errors[name]:.2g} (Gauss-Newton +- {calibration.naive_standard_errors[name]:.2g})")
     model = calibration.model
+    if args.check:
+        write_check(calibration, args.folds)
+        return 0
 
     cv = calibration.record().get("cross_validation")
     if cv is not None:

@@ -31,13 +31,19 @@ FRINGE_ROWS = 68  # rows above this are hair
 NECK = (44, 116, 140, 170)  # x0, x1, y0, y1
 
 
-def skin_mask(srgb8: np.ndarray) -> np.ndarray:
-    """Boolean skin mask (h, w) of an 8-bit sRGB photo (h, w, 3) of the demo's framing."""
+def skin_colour(srgb8: np.ndarray) -> np.ndarray:
+    """The YCbCr skin-colour rule (ITU-R BT.601; Cr 135-180, Cb 85-135, luma above 80 of 255) per
+    pixel (h, w) of an 8-bit sRGB image (h, w, 3): no skin model, no framing."""
     r, g, b = (srgb8[..., c].astype(float) for c in range(3))
     luma = 0.299 * r + 0.587 * g + 0.114 * b
     cb = 128 - 0.168736 * r - 0.331264 * g + 0.5 * b
     cr = 128 + 0.5 * r - 0.418688 * g - 0.081312 * b
-    skin_colour = (cr > 135) & (cr < 180) & (cb > 85) & (cb < 135) & (luma > 80)
+    return (cr > 135) & (cr < 180) & (cb > 85) & (cb < 135) & (luma > 80)
+
+
+def skin_mask(srgb8: np.ndarray) -> np.ndarray:
+    """Boolean skin mask (h, w) of an 8-bit sRGB photo (h, w, 3) of the demo's framing."""
+    skin = skin_colour(srgb8)
     y, x = np.mgrid[: srgb8.shape[0], : srgb8.shape[1]]
 
     def ellipse(cx, cy, rx, ry):
@@ -45,7 +51,7 @@ def skin_mask(srgb8: np.ndarray) -> np.ndarray:
 
     x0, x1, y0, y1 = NECK
     region = ellipse(*FACE) | ((x > x0) & (x < x1) & (y > y0) & (y < y1))
-    mask = skin_colour & region & (y >= FRINGE_ROWS)
+    mask = skin & region & (y >= FRINGE_ROWS)
     for shape in EXCLUDED.values():
         mask &= ~ellipse(*shape)
     return mask

@@ -17,7 +17,8 @@ classified by where it stands:
 - ``definition``: listed in a ``<!-- defines: 400 700 10 -->`` comment of its paragraph: an input, a
   setting, a threshold, a bound, a version or a constant of a formula, which the text defines rather
   than reports (a listed number that the paragraph does not hold is a ``mismatch``: the mark is stale);
-- ``reference``: a citation (year, volume, pages, DOI) or a section of the model notes, which carry
+- ``reference``: a citation (year, volume, pages, DOI), a figure quoted beside a link to the model notes, or
+  a section of the model notes, which carry
   their sources inline (``docs/model-notes.md`` is the model's reference notes);
 - ``orphan``: none of these. A published figure should become generated or sourced, be marked as a
   one-off observation with its date, or be marked as a definition. The listing names a results file
@@ -38,7 +39,7 @@ ROOT = Path(__file__).resolve().parents[1]
 RESULTS = ROOT / "benchmarks" / "results"
 NUMBER = re.compile(r"(?<![\w.])[-+]?\d+(?:[.,]\d+)*(?:\.\d+)?(?:e[-+]?\d+)?(?![\d.,]\d)", re.I)
 CITATION = re.compile(r"(DOI|doi\.org|SIGGRAPH|EGSR|Phys\. Med|Opt\. Lett|Scientific Data|Color Res|Photochem|"
-                      r"OMLC|https?://|et al\.|\(\d{4}\)|\b(19|20)\d{2}\b|\bIEC |\bISO |\bITU)")
+                      r"OMLC|https?://|et al\.|model-notes\.md\)|\(\d{4}\)|\b(19|20)\d{2}\b|\bIEC |\bISO |\bITU)")
 
 
 def _values(node, out: list[float]) -> list[float]:

@@ -63,7 +63,7 @@ for name, fit in (("DJ2006 fixed", fixed), ("extended", extended)):
 # subject's fit pushes the melanin blend to pure pheomelanin (β_m = 0) to match the slope.
 # Freeing scattering, oxygenation, thickness and the surface reflection brings the residual down to
 # the repeat spread, but **not with plausible skin**: most subjects end with the scattering scale on
-# its upper bound (5x DJ2006), an epidermis near the 0.01 mm bound and melanin of 0.1-0.6 for forearm
+# its upper bound (5x DJ2006), a thin epidermis (median about 0.016 mm) and melanin of 0.1-0.6 for forearm
 # skin. The extra freedom compensates for what the model lacks (the port loss and the specular
 # geometry of the instrument, diffusion's bias) rather than measuring skin. The counts below say how
 # many fits sit on a bound.

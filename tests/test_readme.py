@@ -67,6 +67,7 @@ GENERATED_BLOCKS = [
     ("renderers", "renderers.md"),
     ("forward-model", "forward_model.md"),
     ("fit-image", "fit_image.md"),
+    ("profile-fits", "profile_fits.md"),
 ]
 
 

@@ -19,17 +19,22 @@ RESULTS = ROOT / "benchmarks" / "results"
 # results file -> (the script that writes it, the code its numbers depend on)
 DEPENDS_ON = {
     "calibration.json": ("benchmarks/calibrate_model.py", ["skinfit/model", "skinfit/fit"]),
+    "calibration_check.json": ("benchmarks/calibrate_model.py", ["skinfit/model", "skinfit/fit"]),
+    "capture_skin_rule.json": ("benchmarks/capture_skin_rule.py", ["skinfit/model", "skinfit/fit", "skinfit/colorimetry", "skinfit/io"]),
     "fit_image.json": ("benchmarks/fit_image.py", ["skinfit/fit", "skinfit/colorimetry"]),
     "fit_measured.json": ("benchmarks/fit_measured.py", ["skinfit/model", "skinfit/fit"]),
+    "fit_nist.json": ("benchmarks/fit_nist.py", ["skinfit/model", "skinfit/fit"]),
     "fit_noise.json": ("benchmarks/fit_noise.py", ["skinfit/model", "skinfit/fit"]),
     "fit_photos.json": ("benchmarks/fit_photos.py", ["skinfit/fit", "skinfit/colorimetry", "skinfit/io"]),
     "fit_spectra.json": ("benchmarks/fit_spectra.py", ["skinfit/model", "skinfit/fit"]),
     "forward_model.json": ("benchmarks/forward_model.py", ["skinfit/model", "skinfit/export/_profile_tables.py"]),
     "medium_table.json": ("benchmarks/build_medium_table.py", ["skinfit/model", "skinfit/export/_media.py"]),
+    "profile_fits.json": ("benchmarks/profile_fits.py", ["skinfit/model", "skinfit/export", "skinfit/colorimetry", "spectra"]),
     "renderers.json": ("benchmarks/renderers.py", ["skinfit/model", "skinfit/export"]),
     "transport_fit.json": ("benchmarks/transport_fit.py", ["skinfit/model", "skinfit/fit"]),
     "transport_fit_h100.json": ("benchmarks/transport_fit.py", ["skinfit/model", "skinfit/fit"]),
     "transport_table.json": ("benchmarks/build_transport_table.py", ["skinfit/model/_transport.py", "skinfit/model/_transport_table.py"]),
+    "white_balance.json": ("benchmarks/white_balance.py", ["skinfit/model", "skinfit/fit", "skinfit/colorimetry", "skinfit/io"]),
 }
 
 
@@ -91,3 +96,19 @@ def test_the_staleness_check_sees_a_change():
     assert changed_since(_git("rev-parse", "HEAD"), ["skinfit"]) == []
     assert recorded_commit({"git_commit": "abc123 (working tree modified)"}) == "abc123"
     assert recorded_commit({"commit": "b4fceff-dirty"}) == "b4fceff"
+
+
+def test_the_shipped_calibration_is_reproduced_within_its_standard_errors():
+    """``calibrate_model --check`` recalibrated on later code: the shipped model must be what that
+    check compared with, and every constant must land within one of its standard errors (the outer
+    problem is flat along the epidermis's scattering, so the digits are not expected to repeat), with
+    the same held-out error to 0.01 CIEDE2000."""
+    check = json.loads((RESULTS / "calibration_check.json").read_text())
+    shipped = json.loads((ROOT / "spectra" / "calibrated_model.json").read_text())["calibration"]["constants"]
+    assert set(check["constants"]) == set(shipped)
+    for name, entry in check["constants"].items():
+        assert entry["shipped"] == pytest.approx(shipped[name], rel=1e-12), name
+        assert abs(entry["difference_in_standard_errors"]) <= 1.0, (name, entry)
+    for part in check["held_out"].values():
+        assert abs(part["delta_e2000_median"]["recalibrated"] - part["delta_e2000_median"]["shipped"]) <= 0.01
+        assert part["max_steps"]["recalibrated"] == 0

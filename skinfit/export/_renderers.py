@@ -24,7 +24,8 @@ colour weights as ``colorimetry``.
   *exact* transport has the channel's diffuse reflectance R_d and the median energy radius of
   its profile (``skinfit.export``: adding-doubling for the colour, Monte Carlo for the
   scale), under stated ``RendererConventions`` (index, phase function g, units). A medium matched
-  through diffusion theory instead renders up to 35 % too dark in a path tracer. Blender's
+  through diffusion theory instead renders too dark in a path tracer (down to 0.71 of the albedo
+  in the renders of the renderers docs page). Blender's
   Principled BSDF inverts a base colour itself, with a drift measured per Blender version
   (``blender_principled``), which the export compensates.
 """

@@ -28,7 +28,7 @@ toward the population by up to the spread the prior allows, and every pixel coun
 independent draw from the population, which overstates what the prior knows about one face.
 Measured: on the demo photo (warm studio light) gains (0.78-0.82, 1, 1.04-1.10) take the skin mask
 from 92 % to 98 % fitted; on a smooth rendering of the model that spans melanin 0.2-40 % (no face's
-distribution), the gains move to (1.19, 1, 0.82) and every parameter is biased: fit renderings,
+distribution), the gains move to about (1.2, 1, 0.8) and every parameter is biased (benchmarks/white_balance.py): fit renderings,
 and other inputs known to be calibrated, with ``white_balance="none"``. Without a prior (DJ2006) the score is
 the CIEDE2000 of the maximum-likelihood fit, the gamut coverage. Treat fitted gains and blend as
 choices that fit, not measurements; where a colour chart is in the frame, calibrate from it.
