@@ -20,12 +20,12 @@ import datetime
 import json
 import platform
 import subprocess
-import time
 from pathlib import Path
 
 import numpy as np
 
 import skinfit
+from benchmarks._timing import first_and_median
 from skinfit.fit import FitStatus
 from skinfit.io import FACE_SITES, read_issa
 
@@ -41,19 +41,13 @@ def measured_spectra(data: Path, n: int) -> np.ndarray:
 
 
 def timed_fits(spectra: np.ndarray, model, repeats: int = 3, **options) -> dict:
-    start = time.perf_counter()
-    fit = skinfit.fit_spectra(WAVELENGTHS, spectra, model=model, progress=False, **options)
-    first = time.perf_counter() - start
-    seconds = []
-    for _ in range(repeats):
-        start = time.perf_counter()
-        fit = skinfit.fit_spectra(WAVELENGTHS, spectra, model=model, progress=False, **options)
-        seconds.append(time.perf_counter() - start)
+    fit, first, median = first_and_median(
+        lambda: skinfit.fit_spectra(WAVELENGTHS, spectra, model=model, progress=False, **options), repeats=repeats)
     return {
         "model": fit.model,
         "first_call_s": first,
-        "median_s": float(np.median(seconds)),
-        "us_per_spectrum": 1e6 * float(np.median(seconds)) / len(spectra),
+        "median_s": median,
+        "us_per_spectrum": 1e6 * median / len(spectra),
         "delta_e2000_median": float(np.median(fit.delta_e2000)),
         "delta_e2000_p95": float(np.percentile(fit.delta_e2000, 95)),
         "rms_median": float(np.median(fit.rms_residual)),

@@ -12,12 +12,18 @@ what a user calls; everything else lives in its subpackage, and ``skinfit.intern
 machinery the benchmarks use. Units: lengths mm, coefficients mm^-1, wavelengths nm.
 
 Importing skinfit enables JAX float64 (``jax_enable_x64``): the model runs in float64 unless its
-inputs are float32.
+inputs are float32. It also keeps compiled programs on disk between runs (JAX's persistent
+compilation cache, in a private per-machine folder, never over the user's own JAX setting); set
+``SKINFIT_COMPILATION_CACHE=0`` before the import to opt out (``skinfit._compilation_cache``).
 """
 
 import jax as _jax
 
 _jax.config.update("jax_enable_x64", True)
+
+from ._compilation_cache import enable_compilation_cache as _enable_compilation_cache  # noqa: E402
+
+_enable_compilation_cache()
 
 # the imports follow the stages, lowest first
 from . import _deprecated  # noqa: E402

@@ -1,8 +1,14 @@
-import jax
-import numpy as np
-import pytest
+import os
 
-import skinfit  # noqa: F401 - enables float64 before any test builds arrays
+# the suite runs without the persistent compilation cache: what it counts and times must not depend on
+# what an earlier run left on disk (tests/test_compilation_cache.py checks the cache in subprocesses)
+os.environ["SKINFIT_COMPILATION_CACHE"] = "0"
+
+import jax  # noqa: E402
+import numpy as np  # noqa: E402
+import pytest  # noqa: E402
+
+import skinfit  # noqa: F401, E402 - enables float64 before any test builds arrays
 
 #: Light-skin fixture of model notes 5.4 (C_m 0.005, beta_m 0.7, C_h 0.005) at 450, 550, 650 nm.
 LIGHT_FIXTURE = {

@@ -40,18 +40,41 @@ def test_benchmark_command_writes_csv_plots_and_summary(tmp_path):
 
 @pytest.mark.slow
 def test_transport_benchmark_writes_its_results(tmp_path):
-    """benchmarks.transport_fit on two NIST subjects: both methods fit, transport lower in residual."""
+    """benchmarks.transport_fit on two NIST subjects: every method fits, transport lower in residual,
+    the table's fits those of the direct solve, the direct solve far costlier than the table."""
     import json
 
     from benchmarks import transport_fit
 
-    assert transport_fit.main(["--n", "2", "--batch", "4", "--out", str(tmp_path)]) == 0
+    assert transport_fit.main(["--n", "2", "--batch", "4", "--direct", "--out", str(tmp_path)]) == 0
     result = json.loads((tmp_path / "transport_fit.json").read_text())
-    assert result["cost"]["transport_over_diffusion"] > 1.0
-    assert result["nist"]["diffusion"]["success"] == result["nist"]["transport"]["success"] == 2
+    assert result["cost"]["transport_direct_over_transport"] > 10.0
+    assert all(result["nist"][m]["success"] == 2 for m in ("diffusion", "transport", "transport-direct"))
+    assert result["nist"]["transport_vs_direct"]["melanin_max_relative_difference"] < 1e-3
     assert result["nist"]["rms_transport_below_diffusion"] == 2
     assert len((tmp_path / "transport_fit_nist.csv").read_text().splitlines()) == 3
     assert (tmp_path / "transport_fit_nist.png").stat().st_size > 0
+
+
+@pytest.mark.slow
+def test_realistic_fit_benchmark_writes_its_rows(tmp_path):
+    """benchmarks.fit_realistic on small sets: every synthetic row recovers its parameters (noise-free
+    to 1e-6; noisy within what noise allows), the NIST rows fit, the table states the saved ratio."""
+    import json
+
+    from benchmarks import fit_realistic
+
+    assert fit_realistic.main(["--issa", "0", "--synthetic", "20", "--scipy-n", "3", "--repeats", "1", "--models", "dj2006",
+                               "--free-sets", "chromophores", "--no-cache-probe", "--out", str(tmp_path)]) == 0
+    record = json.loads((tmp_path / "fit_realistic.json").read_text())
+    rows = {r["data"]: r for r in record["rows"]}
+    assert rows["synthetic, noise-free"]["max_parameter_error_median"] < 1e-6
+    assert rows["synthetic, 1 % noise"]["max_parameter_error_median"] > rows["synthetic, noise-free"]["max_parameter_error_median"]
+    assert all(r["status_counts"]["MAX_STEPS"] == 0 and r["status_counts"]["BAD_INPUT"] == 0 for r in record["rows"])
+    nist = rows["NIST forearm, 100 subjects"]
+    assert nist["spectra"] == 100 and 3.0 < nist["delta_e2000_median"] < 5.0  # DJ2006 misses forearm skin by ~4
+    table = (tmp_path / "fit_realistic.md").read_text()
+    assert f"{nist['scipy_over_skinfit']:.0f}x" in table
 
 
 def test_the_numbers_census_attributes_what_it_can_and_lists_the_rest(tmp_path):

@@ -67,6 +67,8 @@ GENERATED_BLOCKS = [
     ("renderers", "renderers.md"),
     ("forward-model", "forward_model.md"),
     ("fit-image", "fit_image.md"),
+    ("transport-fit", "transport_fit.md"),
+    ("fit-realistic", "fit_realistic.md"),
     ("profile-fits", "profile_fits.md"),
 ]
 

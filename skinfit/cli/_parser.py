@@ -68,8 +68,8 @@ def build_parser() -> argparse.ArgumentParser:
                           "calibrated default), off for dj2006; --no-prior gives maximum-likelihood fits")
     fit.add_argument("--adding", choices=ADDING_MODES, default=None, help="layer adding of a diffusion model (default directional)")
     fit.add_argument("--method", choices=METHODS, default=None,
-                     help="override the model's forward method: diffusion, or transport (direct adding-doubling; ~100x slower on a GPU, "
-                          "more on a CPU)")
+                     help="override the model's forward method: diffusion, transport (tabulated adding-doubling, about the cost of "
+                          "diffusion) or transport-direct (the direct solve, the reference: ~100x slower on a GPU, thousands of times on a CPU)")
     fit.add_argument("--plot", help="PNG of measured against fitted spectra (best and worst fits)")
     fit.add_argument("--quiet", action="store_true", help="no progress bar")
     fit.set_defaults(run=cmd_fit_spectra)
@@ -110,8 +110,8 @@ def build_parser() -> argparse.ArgumentParser:
     image.add_argument("--exact-steps", type=int, default=0, help="Gauss-Newton steps on the exact model after the spline fit")
     add_model_choice(image)
     image.add_argument("--method", choices=METHODS, default=None,
-                       help="override the model's forward method: diffusion, or transport (direct adding-doubling; its colour table "
-                            "takes ~1-2 min on a laptop CPU)")
+                       help="override the model's forward method: diffusion, transport (tabulated adding-doubling) or transport-direct "
+                            "(the direct solve: its colour table takes minutes on a laptop CPU)")
     image.add_argument("--dask", metavar="ADDRESS", default=None, help="run the images as tasks on this Dask scheduler")
     image.add_argument("--quiet", action="store_true", help="no progress bar")
     image.add_argument("--input-space", default=None, help="srgb, linear or a colour-science RGB colourspace name")

@@ -126,7 +126,7 @@ def colour_table(
 
     ``model``: the ``SkinModel`` (default: the package default); ``method`` overrides its forward
     method as in ``diffuse_reflectance``. ``nodes`` per axis default to 129 (node derivatives by
-    forward-mode autodiff), and to ``TRANSPORT_NODES`` for direct adding-doubling (``method="transport"``:
+    forward-mode autodiff), and to ``TRANSPORT_NODES`` for direct adding-doubling (``method="transport-direct"``:
     thousands of times the cost per spectrum on a CPU; measured 4 s on an H100, 1-2 min on a 2-core
     CPU; once per process), whose node derivatives come from an interpolating spline."""
     if not 0.0 <= melanin_blend <= 1.0:

@@ -322,8 +322,8 @@ def fit_pixels(
         table: a ``colour_table(...)`` of another resolution (spline nodes, inverse cells) to use
             instead of the default one; its blend, illuminant and model must match.
         model: the ``SkinModel`` (default: the package default); ``method`` overrides its forward
-            method (``"transport"``: direct adding-doubling, whose colour table takes minutes on a
-            laptop CPU, once per process and blend). The colour spline and the ``exact_steps`` use it.
+            method (``"transport"``: tabulated adding-doubling; ``"transport-direct"``: the direct
+            solve, whose colour table takes minutes on a laptop CPU, once per process and blend). The colour spline and the ``exact_steps`` use it.
         white_balance: per-channel camera gains the pixels carry: the skin model is fitted to the
             pixels divided by them (``fitted_rgb`` is without them).
 

@@ -193,12 +193,13 @@ def fit_spectra(
             maximum-likelihood fits (exact round trips of model spectra).
         max_rms: converged fits with a larger RMS residual get ``OUT_OF_MODEL``.
         adding: override the diffusion model's adding (``"directional"`` or ``"symmetric"``).
-        method: override the model's forward method: ``"diffusion"``, or ``"transport"``: direct
-            adding-doubling (100x (GPU) to thousands of times (CPU) the cost per spectrum; the model's
-            tabulated transport is as fast as diffusion): the diffusion fit is the start, then bounded
-            Levenberg-Marquardt on the transport model (``skinfit.fit``). With a finite port
-            the captured fraction is the diffusion profile's (energy-corrected, as ``profile``).
-        anisotropy: Henyey-Greenstein g of both layers for ``method="transport"`` (default 0.8).
+        method: override the model's forward method: ``"diffusion"``, ``"transport"`` (tabulated
+            adding-doubling, fitted like diffusion at about its cost) or ``"transport-direct"``: the
+            direct adding-doubling (100x (GPU) to thousands of times (CPU) the cost per spectrum): the
+            diffusion fit is the start, then bounded Levenberg-Marquardt on the direct transport model
+            (``skinfit.fit``). With a finite port the captured fraction is the diffusion profile's
+            (energy-corrected, as ``profile``).
+        anisotropy: Henyey-Greenstein g of both layers for the transport methods (default 0.8).
         chunk_size: spectra per compiled batch (memory stays bounded).
         settings: solver tolerances, step limits and warm-start table size.
         progress: show a progress bar (default: when there is more than one chunk).

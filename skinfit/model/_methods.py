@@ -3,10 +3,13 @@
 Two methods, one registry (``METHODS``, keyed by the names the command line and the keyword
 ``method=`` accept; strings stop at that boundary):
 
-- ``Diffusion``: the DJ2005 multipole of each layer, added in the frequency domain (the default);
+- ``Diffusion`` (``"diffusion"``): the DJ2005 multipole of each layer, added in the frequency domain
+  (DJ2006's method);
 - ``Transport``: exact 1-D radiative transport by adding-doubling with a Henyey-Greenstein phase
-  function, tabulated (``Transport.tabulated``: about the cost of diffusion) or solved directly
-  (the reference; thousands of times the cost on a CPU).
+  function, tabulated (``"transport"``, ``Transport.tabulated``: about the cost of diffusion; the
+  calibrated default model's method) or solved directly (``"transport-direct"``: the reference,
+  thousands of times the cost on a CPU). A user's own stack of layers (``layered_reflectance``) is
+  always solved directly: the table holds an epidermis over a semi-infinite dermis only.
 
 Each method carries its own options and answers what the rest of the package asks of it: the
 reflectance of a stack, the correction of the multipole profile's energy, how to describe and
@@ -173,8 +176,10 @@ class Transport(ForwardMethod):
         return cls(float(g), float(ior), int(streams))
 
     @classmethod
-    def from_options(cls, *, adding=None, anisotropy=None, ior=None, streams=None) -> "Transport":
-        """The direct solve (the keyword ``method="transport"``: the reference) for one concrete index."""
+    def from_options(cls, *, adding=None, anisotropy=None, ior=None, streams=None, tabulated: bool = True) -> "Transport":
+        """Transport for one concrete index: through the table (``method="transport"``; shipped for
+        g 0.8 and n 1.4, built once and cached on disk for other values) or the direct solve
+        (``method="transport-direct"``, the reference)."""
         ior_values = np.unique(np.asarray(ior, dtype=float)) if ior is not None and is_concrete(ior) else None
         if ior_values is None or ior_values.size != 1:
             raise SkinfitInputError("method='transport' needs one concrete ior for the skin")
@@ -182,6 +187,8 @@ class Transport(ForwardMethod):
         check_range("anisotropy", g, -0.99, 0.99)
         if np.ndim(g) != 0:
             raise SkinfitInputError("anisotropy must be one value")
+        if tabulated:
+            return cls.tabulated(float(g), float(ior_values[0]), int(streams or 16))
         return cls(float(g), float(ior_values[0]), int(streams or 16))
 
     @classmethod
@@ -197,15 +204,26 @@ def _diffusion_stack_reflectance(layers, adding, ior_above, ior_below):
     return (1.0 - normal_fresnel_reflectance(layers[0].ior, ior_above)) * r12
 
 
-#: The forward methods by name (the ``method=`` keyword, ``--method``, model files).
-METHODS: dict[str, type[ForwardMethod]] = {method.name: method for method in (Diffusion, Transport)}
+#: The forward methods by the names the ``method=`` keyword and ``--method`` accept: each name's
+#: method class and the options the name implies.
+METHODS: dict[str, tuple[type[ForwardMethod], dict]] = {
+    "diffusion": (Diffusion, {}),
+    "transport": (Transport, {"tabulated": True}),
+    "transport-direct": (Transport, {"tabulated": False}),
+}
 
 
 def method_class(name: str) -> type[ForwardMethod]:
-    """The method registered as ``name``; a clear error for any other string."""
-    if name not in METHODS:
+    """The method class registered as ``name``; a clear error for any other string."""
+    if not isinstance(name, str) or name not in METHODS:
         raise SkinfitInputError(f"method must be one of {', '.join(METHODS)}, got {name!r}")
-    return METHODS[name]
+    return METHODS[name][0]
+
+
+def method_from_options(name: str, *, adding=None, anisotropy=None, ior=None, streams=None) -> ForwardMethod:
+    """The method ``name`` (a ``method=`` keyword) with the public functions' keyword options."""
+    cls = method_class(name)
+    return cls.from_options(adding=adding, anisotropy=anisotropy, ior=ior, streams=streams, **METHODS[name][1])
 
 
 def method_from_dict(spec: dict, ior: float) -> ForwardMethod:

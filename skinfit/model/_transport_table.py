@@ -305,8 +305,12 @@ def load_table(path) -> TransportTable:
     with np.load(path) as data:
         if int(data["format"]) != _FORMAT:
             raise ValueError(f"transport table format {int(data['format'])}, expected {_FORMAT}")
+        # converted in NumPy and placed as a concrete array even when the first use is inside a jit
+        # trace: the table is cached in memory and must not capture a tracer
+        with jax.ensure_compile_time_eval():
+            coefficients = jnp.asarray(np.asarray(data["coefficients"], dtype=np.float64))
         return TransportTable(
-            coefficients=jnp.asarray(data["coefficients"], dtype=jnp.float64),
+            coefficients=coefficients,
             lower=tuple(float(v) for v in data["lower"]),
             step=tuple(float(v) for v in data["step"]),
             anisotropy=float(data["anisotropy"]),

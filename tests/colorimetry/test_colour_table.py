@@ -65,11 +65,11 @@ def test_table_rejects_a_blend_outside_the_unit_interval():
 
 @pytest.mark.slow
 def test_transport_table_interpolates_the_transport_model():
-    """method="transport": node values from adding-doubling, derivatives from the interpolating
+    """method="transport-direct": node values from adding-doubling, derivatives from the interpolating
     spline; on a coarse 17 x 17 table (the image-fit test's) the spline follows exact transport in
     linear sRGB (measured: max 1.4e-3 near the box edge, where the not-a-knot end conditions are
     weakest; 2.0e-4 on the default 33 x 33), and differs clearly from diffusion's colour."""
-    table = colour_table(0.7, nodes=17, inverse_cells=64, method="transport", model=DJ2006)
+    table = colour_table(0.7, nodes=17, inverse_cells=64, method="transport-direct", model=DJ2006)
     roots = np.random.default_rng(2).uniform(0.0, 1.0, (64, 2))
     exact = np.asarray(model_rgb(jnp.asarray(roots), *table.model_arguments()))
     spline = np.asarray(spline_rgb(jnp.asarray(table.coefficients), jnp.asarray(roots))[0])

@@ -197,16 +197,16 @@ def test_cli_dask_needs_a_reachable_scheduler(tmp_path, capsys):
 
 @pytest.mark.slow
 def test_transport_image_fit_recovers_transport_renderings():
-    """method="transport": pixels rendered by exact transport are inverted through a colour table
+    """method="transport-direct": pixels rendered by exact transport are inverted through a colour table
     built with transport (a coarse one here, to keep the test short) and the exact transport
     polish, to the parameters that rendered them; the diffusion fit of the same pixels misses."""
     from skinfit.colorimetry import colour_table
 
     rng = np.random.default_rng(5)
     melanin, haemoglobin, shading = rng.uniform(0.01, 0.2, 6), rng.uniform(0.005, 0.08, 6), rng.uniform(0.6, 1.0, 6)
-    pixels = render_maps(melanin, haemoglobin, shading, method="transport", model=DJ2006)
-    table = colour_table(0.7, nodes=17, inverse_cells=64, method="transport", model=DJ2006)
-    fit = fit_pixels(pixels, table=table, method="transport", model=DJ2006, exact_steps=8, progress=False)
+    pixels = render_maps(melanin, haemoglobin, shading, method="transport-direct", model=DJ2006)
+    table = colour_table(0.7, nodes=17, inverse_cells=64, method="transport-direct", model=DJ2006)
+    fit = fit_pixels(pixels, table=table, method="transport-direct", model=DJ2006, exact_steps=8, progress=False)
     assert np.all(fit["status"] == PixelStatus.SUCCESS)
     np.testing.assert_allclose(fit["melanin"], melanin, atol=1e-8)
     np.testing.assert_allclose(fit["haemoglobin"], haemoglobin, atol=1e-8)

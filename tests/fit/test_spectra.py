@@ -143,7 +143,7 @@ def test_oil_without_a_specular_measurement_is_a_clear_error():
         skinfit.fit_spectra(np.arange(400.0, 701.0, 10.0), np.full(31, 0.3), free=("melanin", "oil"), fixed={"melanin_blend": 0.7, "haemoglobin": 0.01})
 
 
-# -- method="transport" ---------------------------------------------------------------------------
+# -- method="transport-direct" ---------------------------------------------------------------------------
 WL_COARSE = np.arange(400.0, 701.0, 30.0)
 
 
@@ -153,8 +153,8 @@ def test_transport_fit_recovers_transport_spectra_where_diffusion_cannot():
     the transport fit; the diffusion fit of the same spectra misses them (its parameters are
     biased: transport is darker)."""
     true = np.array([[0.02, 0.3, 0.04], [0.15, 0.0, 0.01]])
-    spectra = np.asarray(skinfit.diffuse_reflectance(skinfit.SkinParams(*true.T), WL_COARSE, model=DJ2006, method="transport"))
-    fit = fit_spectra(WL_COARSE, spectra, model=DJ2006, method="transport", progress=False)
+    spectra = np.asarray(skinfit.diffuse_reflectance(skinfit.SkinParams(*true.T), WL_COARSE, model=DJ2006, method="transport-direct"))
+    fit = fit_spectra(WL_COARSE, spectra, model=DJ2006, method="transport-direct", progress=False)
     got = np.column_stack([fit.parameters[k] for k in CHROMOPHORES])
     assert np.all(fit.status == FitStatus.SUCCESS)
     np.testing.assert_allclose(got, true, atol=1e-6)
@@ -178,11 +178,11 @@ def test_transport_fit_converges_on_a_measured_spectrum_far_from_the_model():
     nist = read_nist(Path(__file__).parents[2] / "data" / "nist_skin_reflectance_250-1000nm.csv")
     spectrum = np.interp(WL_COARSE, nist.wavelengths_nm, nist.average[2])
     # a purely spectral fit (no colour term), so that the stationarity below is of the cost it minimised
-    fit = fit_spectra(WL_COARSE, spectrum, model=DJ2006, method="transport", colour_weight=0.0, progress=False)
+    fit = fit_spectra(WL_COARSE, spectrum, model=DJ2006, method="transport-direct", colour_weight=0.0, progress=False)
     diffusion = fit_spectra(WL_COARSE, spectrum, model=DJ2006, colour_weight=0.0, progress=False)
     assert fit.status == FitStatus.SUCCESS and diffusion.status == FitStatus.SUCCESS
     assert fit.rms_residual < diffusion.rms_residual
-    model = measurement_model(skinfit.model.model_with_options(DJ2006, method="transport"), CHROMOPHORES, None, None,
+    model = measurement_model(skinfit.model.model_with_options(DJ2006, method="transport-direct"), CHROMOPHORES, None, None,
                               colour_weight=0.0)
     theta = jnp.array([fit.parameters[k] for k in CHROMOPHORES])
     residual = lambda th: model.spectrum_of_free(th, jnp.asarray(WL_COARSE)) - spectrum  # noqa: E731
@@ -198,11 +198,11 @@ def test_transport_with_a_port_is_energy_corrected():
     from skinfit.fit import measurement_model
 
     params = skinfit.SkinParams(0.05, 0.5, 0.02)
-    model = measurement_model(skinfit.model.model_with_options(DJ2006, method="transport"), CHROMOPHORES, None, 2.0)
+    model = measurement_model(skinfit.model.model_with_options(DJ2006, method="transport-direct"), CHROMOPHORES, None, 2.0)
     got = np.asarray(model.spectrum_of_free(jnp.array([0.05, 0.5, 0.02]), jnp.asarray(WL_COARSE)))
     fraction = (np.asarray(captured_reflectance(params, WL_COARSE, 2.0, model=DJ2006))
                 / np.asarray(skinfit.diffuse_reflectance(params, WL_COARSE, model=DJ2006)))
-    expected = np.asarray(skinfit.diffuse_reflectance(params, WL_COARSE, model=DJ2006, method="transport")) * fraction
+    expected = np.asarray(skinfit.diffuse_reflectance(params, WL_COARSE, model=DJ2006, method="transport-direct")) * fraction
     np.testing.assert_allclose(got, expected, rtol=1e-6)
 
 

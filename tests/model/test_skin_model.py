@@ -149,5 +149,5 @@ def test_the_calibrated_model_is_the_default_and_round_trips():
     assert np.all(fit.status == skinfit.FitStatus.SUCCESS) and np.max(fit.delta_e2000) < 0.1
     np.testing.assert_allclose(fit.parameters["melanin"], params.melanin, rtol=0.01)
     # the tabulated transport follows the direct adding-doubling for this model
-    direct = skinfit.diffuse_reflectance(params, WL, method="transport")
+    direct = skinfit.diffuse_reflectance(params, WL, method="transport-direct")
     np.testing.assert_allclose(spectra, direct, rtol=1e-4)
