@@ -6,6 +6,7 @@ commit, the test warns (``StaleResultWarning``, shown in the test summary) that 
 regenerated with its script. A file with no commit warns too.
 """
 
+import ast
 import json
 import subprocess
 import warnings
@@ -54,8 +55,33 @@ def recorded_commit(record: dict) -> str | None:
 
 
 def changed_since(commit: str, paths: list[str]) -> list[str]:
-    """The files among ``paths`` (files or folders) that commits after ``commit`` changed."""
-    return [line for line in _git("log", "--format=", "--name-only", f"{commit}..HEAD", "--", *paths).splitlines() if line]
+    """The files among ``paths`` (files or folders) whose code commits after ``commit`` changed: a
+    Python file whose docstrings and comments alone changed does not count (its syntax tree without
+    docstrings is the same at ``commit`` and at HEAD); a file moved, added or removed does."""
+    touched = sorted({line for line in _git("log", "--format=", "--name-only", f"{commit}..HEAD", "--", *paths).splitlines() if line})
+    return [path for path in touched if not (path.endswith(".py") and _same_code(commit, "HEAD", path))]
+
+
+def _code(source: str) -> str | None:
+    """The module's syntax tree without docstrings (comments are not in it), or None where it does not parse."""
+    try:
+        tree = ast.parse(source)
+    except SyntaxError:
+        return None
+    for node in ast.walk(tree):
+        body = getattr(node, "body", None)
+        if (isinstance(node, (ast.Module, ast.ClassDef, ast.FunctionDef, ast.AsyncFunctionDef)) and body
+                and isinstance(body[0], ast.Expr) and isinstance(body[0].value, ast.Constant) and isinstance(body[0].value.value, str)):
+            node.body = body[1:] or [ast.Pass()]
+    return ast.dump(tree)
+
+
+def _same_code(old: str, new: str, path: str) -> bool:
+    try:
+        before, after = _git("show", f"{old}:{path}"), _git("show", f"{new}:{path}")
+    except subprocess.CalledProcessError:
+        return False  # added, removed or moved
+    return _code(before) is not None and _code(before) == _code(after)
 
 
 def test_every_results_file_is_listed_and_says_when_and_where_it_was_made():
@@ -95,6 +121,10 @@ def test_the_staleness_check_sees_a_change():
         pytest.skip("not a git checkout")
     assert changed_since(first, ["skinfit"])
     assert changed_since(_git("rev-parse", "HEAD"), ["skinfit"]) == []
+    # a docstring or comment is not code; a changed constant is
+    module = '"""Doc."""\n\ndef f(x):\n    """What f does."""\n    return 2 * x  # twice\n'
+    assert _code(module) == _code(module.replace("What f does.", "What f returns.").replace("# twice", "# double"))
+    assert _code(module) != _code(module.replace("2 * x", "3 * x"))
     assert recorded_commit({"git_commit": "abc123 (working tree modified)"}) == "abc123"
     assert recorded_commit({"commit": "b4fceff-dirty"}) == "b4fceff"
 
