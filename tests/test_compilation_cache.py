@@ -22,7 +22,7 @@ skinfit.diffuse_reflectance(skinfit.preset("light"), np.arange(400.0, 701.0, 50.
 folder = jax.config.jax_compilation_cache_dir
 import pathlib
 files = sorted(p.name for p in pathlib.Path(folder).iterdir()) if folder else []
-print(json.dumps({"folder": folder, "files": len(files), "hits": len(hits)}))
+print(json.dumps({"folder": folder, "files": len(files), "hits": len(hits), "max_bytes": jax.config.jax_compilation_cache_max_size}))
 """
 
 
@@ -38,6 +38,7 @@ def test_a_second_process_loads_what_the_first_compiled(tmp_path):
     first = _probe(tmp_path)
     assert first["folder"].startswith(str(tmp_path / "cache" / "jax"))
     assert first["files"] > 0 and first["hits"] == 0
+    assert 0 < first["max_bytes"] <= 4 * 1024**3  # bounded: JAX evicts the least recently used
     mode = os.stat(first["folder"]).st_mode
     assert not mode & (stat.S_IRWXG | stat.S_IRWXO)  # private: JAX runs what it finds there
     second = _probe(tmp_path)
