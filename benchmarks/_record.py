@@ -14,10 +14,13 @@ ROOT = Path(__file__).resolve().parents[1]
 
 
 def git_commit() -> str:
-    """HEAD, marked when the working tree differs from it."""
+    """HEAD, marked when the working tree's code differs from it (results files that a benchmark
+    run rewrites, under benchmarks/results/, do not count: the next benchmark of the same run still
+    measures HEAD's code)."""
     try:
         commit = subprocess.run(["git", "rev-parse", "HEAD"], cwd=ROOT, capture_output=True, text=True, check=True).stdout.strip()
-        dirty = subprocess.run(["git", "status", "--porcelain"], cwd=ROOT, capture_output=True, text=True, check=True).stdout.strip()
+        dirty = subprocess.run(["git", "status", "--porcelain", "--", ".", ":(exclude)benchmarks/results"], cwd=ROOT,
+                               capture_output=True, text=True, check=True).stdout.strip()
         return commit + (" (working tree modified)" if dirty else "")
     except (OSError, subprocess.CalledProcessError):
         return "unknown"

@@ -16,15 +16,13 @@ times; ``--ratios-only`` recomputes them in the saved record without fitting aga
 from __future__ import annotations
 
 import argparse
-import datetime
 import json
-import platform
-import subprocess
 from pathlib import Path
 
 import numpy as np
 
 import skinfit
+from benchmarks._record import provenance
 from benchmarks._timing import first_and_median
 from skinfit.fit import FitStatus
 from skinfit.io import FACE_SITES, read_issa
@@ -109,9 +107,7 @@ def main(argv=None) -> int:
         return 0
     spectra = measured_spectra(Path(args.data), args.n)
     result = {
-        "date": datetime.date.today().isoformat(),
-        "commit": subprocess.run(["git", "describe", "--always", "--dirty"], capture_output=True, text=True, cwd=ROOT).stdout.strip(),
-        "machine": f"{platform.machine()}, python {platform.python_version()}",
+        **provenance(),
         "spectra": len(spectra),
         "options": {"specular_included_deg": 8.0},
         "dj2006": timed_fits(spectra, skinfit.SkinModel.dj2006(), specular_included_deg=8.0),
