@@ -141,9 +141,10 @@ def cost(table, batch: int = 64, direct_batch: int = 8) -> dict:
                                                      jnp.full(2, G), ior=N, ior_above=1.0, semi_infinite=True, streams=STREAMS)
         return jax.vmap(jax.vmap(one))(sa1, ss1, d, sa2, ss2)
 
-    table_s = median_seconds(values, table, *args, repeats=5) / batch
-    one_spectrum = median_seconds(values, table, *(a[0] for a in args), repeats=50)
-    gradient_s = median_seconds(gradient, args, table, repeats=5) / batch
+    # a batch takes well under a millisecond: the median of many calls, or the shared machine's noise wins
+    table_s = median_seconds(values, table, *args, repeats=201) / batch
+    one_spectrum = median_seconds(values, table, *(a[0] for a in args), repeats=201)
+    gradient_s = median_seconds(gradient, args, table, repeats=201) / batch
     direct_s = median_seconds(jax.jit(direct), *(a[:direct_batch] for a in args), repeats=3) / direct_batch
     return {
         "wavelengths": 31,
