@@ -36,8 +36,8 @@ sigma_s1' d ~ 0.05). File 1.5 MB (float32 coefficients), build 6.5 min on a (sha
 
 Evaluation is a 4 x 4 x 4 stencil of the coefficients, in JAX: jit-, vmap- and grad-able, and the
 derivatives are the exact derivatives of the (C^2) interpolant; a 31-wavelength spectrum costs
-~7 us on a 2-core CPU in batches of 64 (value, or value and gradient), against ~29 ms by
-adding-doubling.
+about 5 us on a 2-core CPU in batches of 64 (value, or value and gradient), against 10-20 ms by
+adding-doubling (benchmarks/results/transport_table.json, transport_fit.json).
 Outside the box the coordinates are clamped to it: a ratio below 1e-5 (zero absorption included)
 is read as 1e-5, above 1e2 as 1e2, and likewise the optical thickness; there the derivative along
 the clamped coordinate is zero, and no finite non-negative absorption or thickness and positive
