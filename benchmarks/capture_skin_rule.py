@@ -25,9 +25,8 @@ from PIL import Image
 import skinfit
 from benchmarks._record import provenance
 from benchmarks.demo_skin_mask import skin_colour
-from benchmarks.fit_photos import INPUTS
+from benchmarks.fit_photos import INPUTS, read_input
 from skinfit.fit import PixelStatus, fit_image
-from skinfit.io import read_linear_rgb, read_mask
 
 ROOT = Path(__file__).resolve().parents[1]
 CAPTURE = "albedo capture (501x798, head mask)"
@@ -41,12 +40,11 @@ def main(argv=None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--out", default=str(ROOT / "benchmarks" / "results"))
     args = parser.parse_args(argv)
-    image, mask_path = INPUTS[CAPTURE]
-    if not image.exists():
-        print(f"{image} not found (the shared data folder): nothing measured")
+    loaded = read_input(CAPTURE)
+    if loaded is None:
         return 1
-    rgb, _ = read_linear_rgb(image)
-    mask = read_mask(mask_path) > 0
+    rgb, mask = loaded
+    image = INPUTS[CAPTURE][0]
     rule = skin_colour(np.asarray(Image.open(image).convert("RGB")))
     start = time.perf_counter()
     fit = fit_image(rgb, mask=mask, progress=False)  # as benchmarks.fit_photos.measure

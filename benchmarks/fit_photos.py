@@ -51,6 +51,17 @@ INPUTS = {
 }
 
 
+def read_input(name: str):
+    """(linear RGB, boolean mask) of ``INPUTS[name]``, or None where its file is not there (the shared
+    data folder is not always beside the checkout)."""
+    image, mask_path = INPUTS[name]
+    if not image.exists():
+        print(f"{name}: {image} not found, skipped")
+        return None
+    rgb, _ = read_linear_rgb(image)
+    return rgb, read_mask(mask_path) > 0
+
+
 def measure(rgb, mask) -> dict:
     start = time.perf_counter()
     fit_image(rgb, mask=mask, progress=False)
@@ -129,12 +140,11 @@ def main(argv=None):
     parser.add_argument("--out", default="benchmarks/results")
     args = parser.parse_args(argv)
     results = {}
-    for name, (image, mask_path) in INPUTS.items():
-        if not image.exists():
-            print(f"{name}: {image} not found, skipped")
+    for name in INPUTS:
+        loaded = read_input(name)
+        if loaded is None:
             continue
-        rgb, _ = read_linear_rgb(image)
-        mask = read_mask(mask_path) > 0
+        rgb, mask = loaded
         result = measure(rgb, mask)
         result["scipy_least_squares"] = scipy_baseline(rgb, result.pop("fit"), args.scipy_n)
         result["speedup_vs_scipy"] = result["scipy_least_squares"]["s_per_megapixel"] / result["s_per_megapixel"]

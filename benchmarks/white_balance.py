@@ -19,37 +19,26 @@ from __future__ import annotations
 
 import argparse
 import json
-import time
 from pathlib import Path
 
 import numpy as np
 
 import skinfit
 from benchmarks._record import provenance
+from benchmarks._timing import first_and_median
 from benchmarks.fit_image import smooth_maps
-from benchmarks.fit_photos import INPUTS
+from benchmarks.fit_photos import INPUTS, read_input
 from skinfit import render_maps
 from skinfit.fit import PixelStatus, fit_image
-from skinfit.io import read_linear_rgb, read_mask
 
 ROOT = Path(__file__).resolve().parents[1]
 
 
-def median_seconds(function, repeats: int) -> float:
-    times = []
-    for _ in range(repeats):
-        start = time.perf_counter()
-        function()
-        times.append(time.perf_counter() - start)
-    return float(np.median(times))
-
-
 def search_cost(rgb, mask, repeats: int) -> dict:
-    auto = fit_image(rgb, mask=mask, progress=False)  # compiles
+    # each timing: a first (compiling) call, then the median of ``repeats``
+    auto, _, with_search = first_and_median(lambda: fit_image(rgb, mask=mask, progress=False), repeats=repeats)
     gains = auto.white_balance
-    fit_image(rgb, mask=mask, white_balance=gains, progress=False)
-    with_search = median_seconds(lambda: fit_image(rgb, mask=mask, progress=False), repeats)
-    given = median_seconds(lambda: fit_image(rgb, mask=mask, white_balance=gains, progress=False), repeats)
+    _, _, given = first_and_median(lambda: fit_image(rgb, mask=mask, white_balance=gains, progress=False), repeats=repeats)
     return {"pixels": int(rgb.shape[0] * rgb.shape[1]), "mask_pixels": int(mask.sum()), "white_balance": list(gains),
             "melanin_blend": auto.summary()["melanin_blend"],
             "s_with_search": with_search, "s_gains_given": given, "search_s": with_search - given}
@@ -76,12 +65,11 @@ def main(argv=None) -> int:
     args = parser.parse_args(argv)
     model = skinfit.SkinModel.default()
     costs = {}
-    for name, (image, mask_path) in INPUTS.items():
-        if not image.exists():
-            print(f"{name}: {image} not found, skipped")
+    for name in INPUTS:
+        loaded = read_input(name)
+        if loaded is None:
             continue
-        rgb, _ = read_linear_rgb(image)
-        costs[name] = search_cost(rgb, read_mask(mask_path) > 0, args.repeats)
+        costs[name] = search_cost(*loaded, args.repeats)
         c = costs[name]
         print(f"{name}: search {c['search_s']:.2f} s ({c['s_with_search']:.2f} s with it, {c['s_gains_given']:.2f} s with the gains given), "
               f"gains {', '.join(f'{g:.2f}' for g in c['white_balance'])}", flush=True)

@@ -52,6 +52,7 @@ import jax.numpy as jnp
 import numpy as np
 import scipy.interpolate
 
+from .._compilation_cache import cache_root
 from .._validate import SkinfitInputError
 from ..model import (
     SKIN_IOR,
@@ -275,8 +276,7 @@ def _file_name(conventions: RendererConventions) -> str:
 
 
 def _cache_dir() -> Path:
-    root = os.environ.get("SKINFIT_CACHE_DIR")
-    return (Path(root) / "media" if root else Path.home() / ".cache" / "skinfit" / "media").expanduser()
+    return cache_root() / "media"
 
 
 @functools.cache

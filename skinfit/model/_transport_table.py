@@ -65,6 +65,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from .._compilation_cache import cache_root
 from ._transport import STREAMS, stack_reflectance_transport
 
 #: Range of sigma_a / sigma_s' (both layers) and of the epidermis's sigma_s' d the table covers.
@@ -321,9 +322,9 @@ def load_table(path) -> TransportTable:
 
 
 def cache_dir() -> Path:
-    """Where built tables are kept: ``$SKINFIT_CACHE_DIR/transport``, else ~/.cache/skinfit/transport."""
-    root = os.environ.get("SKINFIT_CACHE_DIR")
-    return (Path(root) / "transport" if root else Path.home() / ".cache" / "skinfit" / "transport").expanduser()
+    """Where built tables are kept: ``transport/`` in skinfit's cache folder (``$SKINFIT_CACHE_DIR``, else
+    ``$XDG_CACHE_HOME/skinfit``, else ``~/.cache/skinfit``)."""
+    return cache_root() / "transport"
 
 
 def _matches(table: TransportTable, anisotropy, ior, streams, nodes) -> bool:
