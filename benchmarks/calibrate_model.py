@@ -24,6 +24,14 @@ in units of the shipped subject-robust standard error, and the cross-validated e
 The outer problem is flat along the epidermis's scattering (the fold constants spread by several
 standard errors), so a rerun on changed code is expected to land within the standard errors, not on
 the same digits: this is the check that the shipped model is reproducible to its stated uncertainty.
+
+    python -m benchmarks.calibrate_model --compare-methods
+
+calibrates the same constants twice from the same start, once on tabulated transport (the shipped
+model's method) and once on DJ2005 multipole diffusion, each with the same subject folds, and writes
+``benchmarks/results/calibration_methods.{json,md}``: the two sets of constants side by side, the
+held-out error of each overall and per population group, and each model on NIST (another instrument
+and body site, never used in the calibration).
 """
 
 from __future__ import annotations
@@ -74,10 +82,14 @@ def _constant(model, dotted: str) -> float:
     return float(model)
 
 
-def start_model() -> skinfit.SkinModel:
-    """Where the calibration starts: DJ2006's constants on tabulated transport (g 0.8), with a 60 um
-    epidermis whose scattering keeps DJ2006's optical thickness, and single power laws (Jacques 2013
-    Eq. 1) in place of DJ2006's Mie + Rayleigh sum."""
+#: The forward methods ``--compare-methods`` calibrates on: the shipped model's, and DJ2005 diffusion.
+METHODS = {"transport": skinfit.Transport.tabulated, "diffusion": skinfit.Diffusion}
+
+
+def start_model(method: str = "transport") -> skinfit.SkinModel:
+    """Where the calibration starts: DJ2006's constants on ``method`` (default tabulated transport,
+    g 0.8), with a 60 um epidermis whose scattering keeps DJ2006's optical thickness, and single power
+    laws (Jacques 2013 Eq. 1) in place of DJ2006's Mie + Rayleigh sum."""
     dj = skinfit.SkinModel.dj2006()
     scale = dj.epidermis_thickness_mm / EPIDERMIS_THICKNESS_MM
     total = float(dj.epidermis_scattering.mie_mm + dj.epidermis_scattering.rayleigh_mm)
@@ -86,7 +98,7 @@ def start_model() -> skinfit.SkinModel:
         epidermis_scattering=skinfit.model.ScatteringLaw(scale * total, 1.0, 0.0),
         dermis_scattering=skinfit.model.ScatteringLaw(0.5 * total, 1.0, 0.0),
         surface_ior=SURFACE_IOR,
-        method=skinfit.Transport.tabulated(),
+        method=METHODS[method](),
     )
 
 
@@ -255,6 +267,76 @@ def write_check(calibration, folds: int) -> dict:
     return record
 
 
+def held_out_by_group(cv: dict, groups: np.ndarray) -> dict:
+    """Held-out CIEDE2000 median / p95 and RMS median per population group (with the prior)."""
+    out = {}
+    for label in sorted(set(groups), key=lambda g: (int(g.split(":")[0]) if g.split(":")[0].isdigit() else 0, g)):  # archive order
+        at = groups == label
+        out[label] = {"spectra": int(at.sum()), "delta_e2000_median": float(np.median(cv["delta_e2000"][at])),
+                      "delta_e2000_p95": float(np.percentile(cv["delta_e2000"][at], 95)),
+                      "rms_median": float(np.median(cv["rms_residual"][at]))}
+    return out
+
+
+def compare_methods(face, data: Path, folds: int, max_steps: int) -> dict:
+    """Calibrate on each of ``METHODS`` from the same start and folds; write calibration_methods.*."""
+    groups = np.array([f"{r['origin']}: {r['ethnic_group']}" for r in face.records])
+    record = {**provenance(), "spectra": len(face.reflectance), "subjects": len(set(face.subjects)), "folds": folds,
+              "outer_max_steps": max_steps, "methods": {}, "reproduce": "python -m benchmarks.calibrate_model --compare-methods"}
+    for method in METHODS:
+        print(f"calibrating on {method}")
+        calibration = calibrate_model(WAVELENGTHS, face.reflectance, model=start_model(method), constants=DEFAULT_CONSTANTS,
+                                      groups=face.subjects, folds=folds, max_steps=max_steps, name=f"{MODEL_NAME}-{method}",
+                                      **MEASUREMENT)
+        summary = calibration.record()
+        nist = nist_check(data, calibration.model)
+        record["methods"][method] = {
+            "constants": calibration.constants, "standard_errors": calibration.standard_errors,
+            "outer_cost": calibration.history[-1], "outer_steps": len(calibration.history),
+            "calibration_seconds": calibration.seconds, "in_sample": summary["in_sample"],
+            "held_out": summary["cross_validation"]["with_prior"],
+            "held_out_maximum_likelihood": summary["cross_validation"]["maximum_likelihood"],
+            "held_out_by_group": held_out_by_group(calibration.cross_validation, groups),
+            "nist": nist["calibrated"], "nist_repeat_spread_rms_median": nist["repeat_spread_rms_median"],
+        }
+        print(f"  held out: CIEDE2000 median {summary['cross_validation']['with_prior']['delta_e2000_median']:.3f}")
+    (RESULTS / "calibration_methods.json").write_text(json.dumps(record, indent=2) + "\n", encoding="utf-8")
+    (RESULTS / "calibration_methods.md").write_text(methods_markdown(record), encoding="utf-8")
+    print(f"wrote {RESULTS / 'calibration_methods.json'} and calibration_methods.md")
+    return record
+
+
+def methods_markdown(record: dict) -> str:
+    """The transport-against-diffusion table of docs/model.md, from the saved record."""
+    t, d = record["methods"]["transport"], record["methods"]["diffusion"]
+    lines = [
+        f"Measured {record['date']} ({record['machine']}), `{record['reproduce']}`: the same constants calibrated from the same "
+        f"start on {record['spectra']:,} ISSA face spectra of {record['subjects']} subjects, held out in {record['folds']} subject folds.",
+        "",
+        "| | tabulated transport (shipped) | DJ2005 diffusion |",
+        "|---|---|---|",
+    ]
+    for name in t["constants"]:
+        lines.append(f"| `{name}` | {t['constants'][name]:.4g} ± {t['standard_errors'][name]:.2g} | "
+                     f"{d['constants'][name]:.4g} ± {d['standard_errors'][name]:.2g} |")
+    lines.append(f"| outer cost (steps) | {t['outer_cost']:.4f} ({t['outer_steps']}) | {d['outer_cost']:.4f} ({d['outer_steps']}) |")
+    for label, key in (("held out, CIEDE2000 median / p95", "held_out"), ("held out, maximum likelihood, CIEDE2000 median / p95",
+                                                                           "held_out_maximum_likelihood")):
+        lines.append(f"| {label} | {t[key]['delta_e2000_median']:.3f} / {t[key]['delta_e2000_p95']:.2f} | "
+                     f"{d[key]['delta_e2000_median']:.3f} / {d[key]['delta_e2000_p95']:.2f} |")
+    lines.append(f"| held out, RMS median | {t['held_out']['rms_median']:.4f} | {d['held_out']['rms_median']:.4f} |")
+    lines.append(f"| held out, MAX_STEPS | {t['held_out']['max_steps']} | {d['held_out']['max_steps']} |")
+    for label in t["held_out_by_group"]:
+        a, b = t["held_out_by_group"][label], d["held_out_by_group"][label]
+        lines.append(f"| held out, {label} ({a['spectra']} spectra), CIEDE2000 median / p95 | {a['delta_e2000_median']:.3f} / "
+                     f"{a['delta_e2000_p95']:.2f} | {b['delta_e2000_median']:.3f} / {b['delta_e2000_p95']:.2f} |")
+    lines.append(f"| NIST forearm (never calibrated on), CIEDE2000 median / p95 | {t['nist']['delta_e2000_median']:.3f} / "
+                 f"{t['nist']['delta_e2000_p95']:.2f} | {d['nist']['delta_e2000_median']:.3f} / {d['nist']['delta_e2000_p95']:.2f} |")
+    lines.append(f"| NIST forearm, RMS median (repeat spread {t['nist_repeat_spread_rms_median']:.4f}) | {t['nist']['rms_median']:.4f} | "
+                 f"{d['nist']['rms_median']:.4f} |")
+    return "\n".join(lines) + "\n"
+
+
 def main(argv=None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--data", default=str(ROOT.parent / "shared" / "data"), help="the shared data folder")
@@ -266,6 +348,8 @@ def main(argv=None) -> int:
     parser.add_argument("--report-only", action="store_true", help="only redo the report of the shipped model (no calibration)")
     parser.add_argument("--check", action="store_true",
                         help="recalibrate on the current code and compare with the shipped model (writes calibration_check.json only)")
+    parser.add_argument("--compare-methods", action="store_true",
+                        help="calibrate on tabulated transport and on diffusion; write calibration_methods.{json,md} only")
     args = parser.parse_args(argv)
     data = Path(args.data)
 
@@ -282,6 +366,9 @@ def main(argv=None) -> int:
         path.write_text(json.dumps(record, indent=2) + "\n", encoding="utf-8")
         write_summary(record)
         print(f"wrote the report into {path} and calibration_summary.md")
+        return 0
+    if args.compare_methods:
+        compare_methods(face, data, args.folds, args.max_steps)
         return 0
 
     calibration = calibrate_model(WAVELENGTHS, face.reflectance, model=start_model(), constants=DEFAULT_CONSTANTS,
