@@ -62,6 +62,7 @@ def _constant(constants, dotted):
 GENERATED_BLOCKS = [
     ("bench", "pareto/summary.md"),
     ("calibration", "calibration_summary.md"),
+    ("calibration-methods", "calibration_methods.md"),
     ("fit-measured", "fit_measured.md"),
     ("fit-photos", "fit_photos.md"),
     ("renderers", "renderers.md"),

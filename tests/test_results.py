@@ -21,6 +21,7 @@ RESULTS = ROOT / "benchmarks" / "results"
 DEPENDS_ON = {
     "calibration.json": ("benchmarks/calibrate_model.py", ["skinfit/model", "skinfit/fit"]),
     "calibration_check.json": ("benchmarks/calibrate_model.py", ["skinfit/model", "skinfit/fit"]),
+    "calibration_methods.json": ("benchmarks/calibrate_model.py", ["skinfit/model", "skinfit/fit"]),
     "capture_skin_rule.json": ("benchmarks/capture_skin_rule.py", ["skinfit/model", "skinfit/fit", "skinfit/colorimetry", "skinfit/io"]),
     "fit_image.json": ("benchmarks/fit_image.py", ["skinfit/fit", "skinfit/colorimetry"]),
     "fit_measured.json": ("benchmarks/fit_measured.py", ["skinfit/model", "skinfit/fit"]),
