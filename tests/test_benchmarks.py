@@ -98,3 +98,19 @@ def test_the_numbers_census_attributes_what_it_can_and_lists_the_rest(tmp_path):
     # paragraph does not hold is a stale mark
     assert ("12.34", "orphan") in got and ("9", "mismatch") in got
     assert all(kind == "code" for shown, kind in got if shown in ("0.001", "20", "256"))
+
+
+@pytest.mark.slow
+def test_solver_diagnosis_shows_the_bound_trap_on_measured_spectra(tmp_path):
+    """benchmarks.solver_diagnosis on NIST: under DJ2006 every fit has the melanin blend on its bound;
+    the plain sine-coordinate Gauss-Newton step sits at its clip there and converges for almost none,
+    the projected step converges for most."""
+    from benchmarks.solver_diagnosis import main
+
+    record = main(["--issa", "0", "--synthetic", "20", "--out", str(tmp_path)])
+    assert (tmp_path / "solver_diagnosis.json").exists()
+    nist = next(r for r in record["rows"] if r["data"] == "NIST forearm" and r["model"] == "dj2006")
+    assert nist["on_bound_fraction"]["melanin_blend"] > 0.9
+    plain, projected = nist["gauss_newton_plain"], nist["gauss_newton_projected"]
+    assert plain["step_at_clip_fraction"] > 0.5 and plain["converged_within_steps_fraction"] < 0.2
+    assert projected["converged_within_steps_fraction"] > 0.8

@@ -34,6 +34,7 @@ DEPENDS_ON = {
     "medium_table.json": ("benchmarks/build_medium_table.py", ["skinfit/model", "skinfit/export/_media.py"]),
     "profile_fits.json": ("benchmarks/profile_fits.py", ["skinfit/model", "skinfit/export", "skinfit/colorimetry", "spectra"]),
     "renderers.json": ("benchmarks/renderers.py", ["skinfit/model", "skinfit/export"]),
+    "solver_diagnosis.json": ("benchmarks/solver_diagnosis.py", ["skinfit/model", "skinfit/fit"]),
     "transport_fit.json": ("benchmarks/transport_fit.py", ["skinfit/model", "skinfit/fit", "skinfit/colorimetry"]),
     "transport_fit_h100.json": ("benchmarks/transport_fit.py", ["skinfit/model", "skinfit/fit"]),
     "transport_table.json": ("benchmarks/build_transport_table.py", ["skinfit/model/_transport.py", "skinfit/model/_transport_table.py"]),
