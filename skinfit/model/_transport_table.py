@@ -64,6 +64,7 @@ import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
+from jax.custom_derivatives import SymbolicZero
 
 from .._compilation_cache import cache_root
 from ._transport import STREAMS, stack_reflectance_transport
@@ -132,7 +133,7 @@ class TransportTable(eqx.Module):
         x2 = jnp.log(jnp.clip(ss1 * d, *THICKNESS_RANGE))
         x3 = jnp.log(jnp.clip(sa2 / ss2, *RATIO_RANGE))
         x = [jnp.broadcast_to(a, shape).reshape(-1) for a in (x1, x2, x3)]
-        y = _spline(self.coefficients.astype(dtype), x, self.lower, self.step)
+        y = _spline(self.coefficients.astype(dtype), *x, self.lower, self.step)
         return (self.max_reflectance * jax.nn.sigmoid(y)).reshape(shape)
 
 
@@ -148,20 +149,61 @@ def _bspline_weights(u):
     return jnp.stack([v * v * v, 3.0 * u3 - 6.0 * u2 + 4.0, -3.0 * u3 + 3.0 * u2 + 3.0 * u + 1.0, u3], axis=-1) / 6.0
 
 
-def _spline(coefficients, x, lower, step):
-    """The spline at points x (three (m,) arrays of coordinates, inside the grid): the 4 x 4 x 4
-    coefficients around each point (one slice each: on CPU twice as fast as a gather of 64
-    scattered indices at spectrum-sized batches), contracted with the weights axis by axis."""
-    index, weights = [], []
+def _bspline_slopes(u):
+    """d/du of ``_bspline_weights`` (..., 4)."""
+    v = 1.0 - u
+    u2 = u * u
+    return jnp.stack([-3.0 * v * v, 9.0 * u2 - 12.0 * u, -9.0 * u2 + 6.0 * u + 3.0, 3.0 * u2], axis=-1) / 6.0
+
+
+def _stencil(coefficients, x, lower, step):
+    """The 4 x 4 x 4 coefficients around each point (one slice each: on CPU twice as fast as a
+    gather of 64 scattered indices at spectrum-sized batches) and, per axis, the position u in
+    [0, 1] of the point in its cell."""
+    index, position = [], []
     for xi, lo, h, size in zip(x, lower, step, coefficients.shape):
         t = (xi - lo) / h
         cell = jnp.clip(jnp.floor(t), 0, size - 4)  # size - 3 cells: the last node falls in the last cell
         index.append(cell.astype(jnp.int32))
-        weights.append(_bspline_weights(t - cell))
+        position.append(t - cell)
     block = jax.vmap(lambda i, j, k: jax.lax.dynamic_slice(coefficients, (i, j, k), (4, 4, 4)))(*index)
-    block = jnp.einsum("mabc,mc->mab", block, weights[2])
-    block = jnp.einsum("mab,mb->ma", block, weights[1])
-    return jnp.einsum("ma,ma->m", block, weights[0])
+    return block, position
+
+
+@functools.partial(jax.custom_jvp, nondiff_argnums=(4, 5))
+def _spline(coefficients, x1, x2, x3, lower, step):
+    """The spline at the points (x1, x2, x3) (each (m,), inside the grid): the stencil contracted
+    with the weights axis by axis."""
+    block, u = _stencil(coefficients, (x1, x2, x3), lower, step)
+    block = jnp.einsum("mabc,mc->mab", block, _bspline_weights(u[2]))
+    block = jnp.einsum("mab,mb->ma", block, _bspline_weights(u[1]))
+    return jnp.einsum("ma,ma->m", block, _bspline_weights(u[0]))
+
+
+@functools.partial(_spline.defjvp, symbolic_zeros=True)
+def _spline_jvp(lower, step, primals, tangents):
+    # The value and its three partial derivatives from one stencil: a Jacobian (any number of
+    # tangents) then costs about two evaluations, where differentiating through the slices and
+    # contractions cost ten (measured: jacfwd of a 31-wavelength spectrum in 3 directions, 2-core
+    # CPU, 23 us through the contractions against 2.5 us).
+    coefficients, *x = primals
+    block, u = _stencil(coefficients, x, lower, step)
+    weights = [_bspline_weights(ui) for ui in u]
+    slopes = [_bspline_slopes(ui) / h for ui, h in zip(u, step)]  # d weights / dx
+    c = jnp.einsum("mabc,mc->mab", block, weights[2])
+    dc = jnp.einsum("mabc,mc->mab", block, slopes[2])
+    b = jnp.einsum("mab,mb->ma", c, weights[1])
+    value = jnp.einsum("ma,ma->m", b, weights[0])
+    gradient = (jnp.einsum("ma,ma->m", b, slopes[0]),
+                jnp.einsum("ma,ma->m", jnp.einsum("mab,mb->ma", c, slopes[1]), weights[0]),
+                jnp.einsum("ma,ma->m", jnp.einsum("mab,mb->ma", dc, weights[1]), weights[0]))
+    tangent = jnp.zeros_like(value)
+    for g, t in zip(gradient, tangents[1:]):
+        if not isinstance(t, SymbolicZero):
+            tangent = tangent + g * t
+    if not isinstance(tangents[0], SymbolicZero):  # the spline is linear in its coefficients
+        tangent = tangent + _spline(tangents[0], *x, lower, step)
+    return value, tangent
 
 
 def _not_a_knot_inverse(n: int) -> np.ndarray:

@@ -92,6 +92,32 @@ def test_gradient_matches_finite_differences(table):
             assert grad[i] == pytest.approx(fd, rel=1e-5, abs=1e-9 * abs(float(table.reflectance(*row))) / row[i])
 
 
+def test_explicit_derivative_rule_matches_differentiating_the_contractions(table):
+    """The spline's JVP rule (value and gradient from one stencil) against automatic differentiation
+    of the plain contractions: first and second derivatives, in the coordinates and the coefficients."""
+
+    def contracted(coefficients, x):
+        block, u = tt._stencil(coefficients, tuple(x[:, i] for i in range(3)), table.lower, table.step)
+        block = jnp.einsum("mabc,mc->mab", block, tt._bspline_weights(u[2]))
+        block = jnp.einsum("mab,mb->ma", block, tt._bspline_weights(u[1]))
+        return jnp.einsum("ma,ma->m", block, tt._bspline_weights(u[0]))
+
+    def ruled(coefficients, x):
+        return tt._spline(coefficients, x[:, 0], x[:, 1], x[:, 2], table.lower, table.step)
+
+    rng = np.random.default_rng(17)
+    x = jnp.asarray(np.stack([rng.uniform(lo + 0.1, hi - 0.1, 5) for lo, hi in zip(table.lower, table.upper)], axis=1))
+    c = table.coefficients
+    np.testing.assert_allclose(ruled(c, x), contracted(c, x), rtol=1e-13)
+    for order in (jax.jacfwd, jax.jacrev):
+        np.testing.assert_allclose(order(ruled, 1)(c, x), order(contracted, 1)(c, x), rtol=1e-11, atol=1e-12)
+    hessian = lambda f: jax.vmap(jax.hessian(lambda xi: f(c, xi[None])[0]))(x)  # noqa: E731
+    np.testing.assert_allclose(hessian(ruled), hessian(contracted), rtol=1e-10, atol=1e-10)
+    direction = jnp.asarray(rng.standard_normal(c.shape))  # the spline is linear in its coefficients
+    along = lambda f: jax.jvp(lambda k: f(k, x), (c,), (direction,))[1]  # noqa: E731
+    np.testing.assert_allclose(along(ruled), along(contracted), rtol=1e-12)
+
+
 def test_jit_vmap_grad_and_broadcasting(table):
     stacks = skin_stacks(6, seed=9)
     args = [jnp.asarray(c) for c in stacks.T]
