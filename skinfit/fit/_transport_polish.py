@@ -133,45 +133,56 @@ class BoundedPolish:
         return (state.carry.moved <= self.step_tol) | stationary
 
     @eqx.filter_jit
-    def _round(self, measurement, x, damping, curvature, target, fresh):
-        """``ROUND_STEPS`` iterations for a batch; returns (x, damping, curvature, converged)."""
+    def _enter(self, measurement, x, target, curvature):
+        """The starting states of a batch: one linearisation each."""
+        return jax.vmap(lambda a, t, c: self._start(measurement, a, t, c))(x, target, curvature)
 
-        def one(x, damping, curvature, target, fresh):
-            state = self._start(measurement, x, target, curvature)
-            state = eqx.tree_at(lambda s: s.carry.damping, state, jnp.where(fresh, state.carry.damping, damping))
+    @eqx.filter_jit
+    def _round(self, measurement, state: LockstepState, target):
+        """``ROUND_STEPS`` iterations of a batch of states; returns (states, converged)."""
+
+        def one(state, target):
             state = self._iterate(measurement, state, target, ROUND_STEPS)
-            return state.point, state.carry.damping, state.carry.curvature, self._converged(state)
+            return state, self._converged(state)
 
-        return jax.vmap(one)(x, damping, curvature, target, fresh)
+        return jax.vmap(one)(state, target)
 
     def run(self, measurement, theta0: np.ndarray, target: np.ndarray, max_steps: int, chunk_size: int, progress,
             fixed_batch: bool = False):
         """Polish physical values ``theta0`` (n, f) against ``target`` (n, m); returns
         (theta, iterations, converged). ``fixed_batch``: batches of exactly ``chunk_size`` (one
-        compiled program per problem; cheap models), else of the size that is left."""
+        compiled program per problem; cheap models), else of the size that is left.
+
+        Between rounds the unconverged are gathered and each carries its whole state (point,
+        residual, Jacobian, secant curvature, damping): a round resumes where the last one ended,
+        with no Jacobian spent on restarting."""
         n = len(theta0)
         low, span = np.asarray(self.low), np.asarray(self.span)
         x = np.clip((theta0 - low) / span, 0.0, 1.0)
-        damping = np.full(n, _INITIAL_DAMPING)
         curvature = np.zeros((n, x.shape[1], x.shape[1]))
-        fresh = np.ones(n, dtype=bool)
+        size = lambda count: chunk_size if fixed_batch else pad_size(count, chunk_size)  # noqa: E731
+        enter = lambda *a: jax.tree_util.tree_leaves(self._enter(measurement, *a))  # noqa: E731
+        leaves = map_batches(enter, (x, target, curvature), size(n), progress, "bounded fit")
         done = np.zeros(n, dtype=bool)
-        steps = np.zeros(n, dtype=np.int64)
+        steps = np.ones(n, dtype=np.int64)  # the entering linearisation
         todo = np.arange(n)
+
+        def resume(*arrays):
+            state, converged = self._round(measurement, jax.tree_util.tree_unflatten(_STATE, arrays[:-1]), arrays[-1])
+            return (*jax.tree_util.tree_leaves(state), converged)
+
         for _ in range(max(1, -(-max_steps // ROUND_STEPS))):
             if not todo.size:
                 break
             # fixed_batch: every round in batches of chunk_size (padded), one compilation whatever is
             # left; otherwise the batch shrinks with what is left (for costly direct transport)
-            size = chunk_size if fixed_batch else pad_size(todo.size, chunk_size)
-            rounds = lambda *a: self._round(measurement, *a)  # noqa: E731
-            x[todo], damping[todo], curvature[todo], done[todo] = map_batches(
-                rounds, (x[todo], damping[todo], curvature[todo], target[todo], fresh[todo]), size, progress, "bounded fit"
-            )
-            fresh[todo] = False
-            steps[todo] += ROUND_STEPS + 1
+            *out, done[todo] = map_batches(resume, (*(a[todo] for a in leaves), target[todo]), size(todo.size), progress, "bounded fit")
+            for full, part in zip(leaves, out):
+                full[todo] = part
+            steps[todo] += ROUND_STEPS
             todo = todo[~done[todo]]
-        return low + span * x, steps, done
+        point = jax.tree_util.tree_unflatten(_STATE, leaves).point
+        return low + span * point, steps, done
 
 
 @functools.lru_cache(maxsize=16)
@@ -179,6 +190,10 @@ def bounded_polish(free: tuple, wavelengths: tuple, weights: tuple, step_tol: fl
     """One ``BoundedPolish`` per problem: its compiled rounds serve every later call (the
     measurement's values are arguments of them, not part of the instance)."""
     return BoundedPolish(free, wavelengths, weights, step_tol, stationarity_tol)
+
+
+#: The structure of a polish state (its leaves travel between rounds as NumPy arrays).
+_STATE = jax.tree_util.tree_structure(LockstepState(0, 0, _Linearisation(0, 0, 0, 0, 0)))
 
 
 def _secant_update(curvature, step, jacobian, residual, new_jacobian, new_residual):
