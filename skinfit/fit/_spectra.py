@@ -13,8 +13,9 @@ Pipeline for a batch of spectra (compiled once per wavelength grid, free set and
    batched while-loops run until the slowest member finishes).
 3. The spectra that have not converged (most measured spectra: large-residual problems, where
    Gauss-Newton converges linearly or not at all) are gathered into small batches for bounded
-   Levenberg-Marquardt with a secant curvature term (``BoundedPolish``), and the few left go to
-   optimistix Levenberg-Marquardt.
+   Levenberg-Marquardt with a secant curvature term (``BoundedPolish``, in the variables' linear or
+   logarithmic range positions), then with the exact curvature, and the few left go to optimistix
+   Levenberg-Marquardt.
 4. Diagnostics at the optimum: RMS residual, standard errors from the Jacobian, CIEDE2000 between
    measured and fitted colour under D65, iteration count and a status code per spectrum.
 """
@@ -114,8 +115,10 @@ class SolverSettings:
     continue for ``continue_steps`` more Gauss-Newton steps, 0 by default); what still has not converged
     goes to bounded Levenberg-Marquardt with NL2SOL's secant curvature (``skinfit.fit.BoundedPolish``,
     at most ``polish_steps``, converged also when first-order optimal on a bound within
-    ``stationarity_tol``: measured spectra are large-residual problems, where Gauss-Newton converges
-    linearly or not at all), and what is left to optimistix
+    ``stationarity_tol`` or when the model step predicts a relative cost reduction below
+    ``reduction_tol``: measured spectra are large-residual problems, where Gauss-Newton converges
+    linearly or not at all), then to the same with the exact curvature (at most ``newton_steps``:
+    fits in long curved valleys, e.g. the extended free set on measured faces), and what is left to optimistix
     Levenberg-Marquardt (``rtol``, ``atol``, ``max_steps``). A transport fit then takes at most ``transport_steps`` bounded
     Levenberg-Marquardt steps on the transport model (``skinfit.fit``).
     """
@@ -129,10 +132,12 @@ class SolverSettings:
     atol: float = 1e-11
     max_steps: int = 256
     stationarity_tol: float = 1e-6
+    reduction_tol: float = 1e-10
     table_shape: tuple[int, int, int] = (24, 9, 24)
     start_groups: tuple[int, int] = (2, 4)
     transport_steps: int = 40
     polish_steps: int = 60
+    newton_steps: int = 60
 
 
 #: Default weight of the CIELAB (D65) colour difference in the fit's residual, per unit of Delta E:
@@ -271,7 +276,8 @@ def _fit_transport(measurement, lam, w, target, settings, chunk_size, progress):
     diffusion = measurement.as_diffusion()
     u, steps, _ = _solver(diffusion.static_key, wavelengths, weights, settings).run(diffusion, target, chunk_size, progress)
     theta = np.stack([from_unbounded(name, np.asarray(u[:, i])) for i, name in enumerate(measurement.free)], axis=1)
-    polish = bounded_polish(measurement.free, wavelengths, weights, settings.step_tol, settings.stationarity_tol)
+    polish = bounded_polish(measurement.free, wavelengths, weights, settings.step_tol, settings.stationarity_tol,
+                            reduction_tol=settings.reduction_tol)
     theta, more, converged = polish.run(measurement, theta, target, settings.transport_steps, chunk_size, progress)
     u = np.stack([to_unbounded(name, theta[:, i]) for i, name in enumerate(measurement.free)], axis=1)
     return u, steps + more, converged
@@ -476,8 +482,17 @@ class _Solver:
         todo = np.flatnonzero(~done)
         if todo.size and s.polish_steps:  # bounded quasi-Newton for what Gauss-Newton left
             theta = np.stack([from_unbounded(n, np.asarray(u[todo, i])) for i, n in enumerate(measurement.free)], axis=1)
-            polish = bounded_polish(measurement.free, self.wavelengths, tuple(np.asarray(self.w).tolist()), s.step_tol, s.stationarity_tol)
+            polish = bounded_polish(measurement.free, self.wavelengths, tuple(np.asarray(self.w).tolist()), s.step_tol, s.stationarity_tol,
+                                    reduction_tol=s.reduction_tol)
             theta, more, done[todo] = polish.run(measurement, theta, target[todo], s.polish_steps, _GATHERED_BATCH, False, fixed_batch=True)
+            u[todo] = np.stack([to_unbounded(n, theta[:, i]) for i, n in enumerate(measurement.free)], axis=1)
+            steps[todo] += more
+        todo = np.flatnonzero(~done)
+        if todo.size and s.newton_steps:  # the same with the exact second-order term, for valleys
+            theta = np.stack([from_unbounded(n, np.asarray(u[todo, i])) for i, n in enumerate(measurement.free)], axis=1)
+            newton = bounded_polish(measurement.free, self.wavelengths, tuple(np.asarray(self.w).tolist()), s.step_tol, s.stationarity_tol,
+                                    exact_curvature=True, reduction_tol=s.reduction_tol)
+            theta, more, done[todo] = newton.run(measurement, theta, target[todo], s.newton_steps, _GATHERED_BATCH, False, fixed_batch=True)
             u[todo] = np.stack([to_unbounded(n, theta[:, i]) for i, n in enumerate(measurement.free)], axis=1)
             steps[todo] += more
         todo = np.flatnonzero(~done)

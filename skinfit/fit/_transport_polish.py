@@ -1,22 +1,26 @@
-"""Spectral fits on the transport-exact model: diffusion warm start, bounded Levenberg-Marquardt.
+"""Bounded Levenberg-Marquardt with a curvature term: what finishes spectral fits.
 
-A transport spectrum costs 100 (GPU) to thousands (CPU) of diffusion spectra, so a transport fit
-spends its model evaluations where they count:
+It finishes the fits that the lock-step Gauss-Newton of ``_spectra`` leaves unconverged (most
+measured spectra: large-residual problems), and direct transport fits, where a transport spectrum
+costs 100 (GPU) to thousands (CPU) of diffusion spectra:
 
-1. The whole diffusion fit (``spectral_fit``: table, Gauss-Newton, fallback) gives each spectrum
-   its start: diffusion and transport optima differ (transport is darker), but lie in the same basin.
-2. Levenberg-Marquardt on the transport model in the physical coordinates, scaled to [0, 1] per
-   variable, with the box handled by an active set: a variable on a bound whose gradient pushes
-   outward is held there, the rest take the damped Gauss-Newton step, clipped to the box. Optima on
-   a bound (common for measured skin: no eumelanin) then converge like interior ones, where the
-   sine transform of the diffusion solver makes Gauss-Newton converge only linearly and leaves
-   hundreds of steps to the fallback, each a transport Jacobian.
-3. It runs in lock-step rounds over the spectra still unconverged, gathered between rounds, so a
-   converged spectrum stops costing. One iteration is one forward-mode Jacobian of the transport
-   spectrum (~9 transport spectra).
+1. Each variable moves in its position x in [0, 1] of its range: linear, or logarithmic for the
+   multiplicative ones (concentrations, thickness, scales; ``BoundedPolish.physical``). The box is
+   handled by an active set (Bertsekas's projected Newton): a variable on or within 1e-4 of a bound
+   whose gradient pushes outward moves onto the bound and is held there; the others take the damped
+   step, clipped to the box. Optima on a bound (common for measured skin: no eumelanin) converge
+   like interior ones.
+2. The step solves (J^T J + S + damping D) step = -J^T r, with S the residuals' own curvature: a
+   secant estimate (NL2SOL) by default, or exact (automatic differentiation, ~4 Jacobians) in the
+   second stage of ``_spectra``, for fits in long curved valleys (the extended free sets).
+3. It runs in lock-step rounds over the spectra still unconverged, gathered between rounds, each
+   carrying its state, so a converged spectrum stops costing. One iteration is one forward-mode
+   Jacobian.
 
 A spectrum has converged when an accepted step moves no variable by more than ``step_tol`` of its
-range, or when it is first-order optimal (``spectral_fit._stationarity``).
+range, when it is first-order optimal (``_variables.stationarity``), or when the undamped model step
+predicts a relative reduction of the cost below ``reduction_tol`` (NL2SOL's relative function
+convergence).
 """
 
 from __future__ import annotations
@@ -36,6 +40,8 @@ from ._variables import VARIABLES, stationarity
 #: Lock-step iterations between two gatherings of the unconverged spectra.
 ROUND_STEPS = 6
 _INITIAL_DAMPING = 1e-3
+_ACTIVE_BAND = 1e-4  # range fraction from a bound within which a variable pushed outward is held on it
+_CONVERGENCE_DAMPING = 1e-12  # keeps the model step's system regular in the convergence test
 
 
 class _Linearisation(eqx.Module):
@@ -60,50 +66,102 @@ class BoundedPolish:
     solves (J^T J + S + damping D) step = -J^T r over the free variables and falls back to plain
     Gauss-Newton where J^T J + S is not a descent model. A Hessian by automatic differentiation
     would cost ~8 Jacobians of the transport spectrum per iteration; the secant update costs none.
+    With ``exact_curvature`` S is computed exactly at every linearisation instead (about four
+    Jacobians for three variables): for what the secant polish leaves, fits in long curved valleys
+    whose curvature the secant update does not learn in 60 steps.
     """
 
-    def __init__(self, free: tuple, wavelengths: tuple, weights: tuple, step_tol: float, stationarity_tol: float):
+    def __init__(self, free: tuple, wavelengths: tuple, weights: tuple, step_tol: float, stationarity_tol: float,
+                 exact_curvature: bool = False, reduction_tol: float = 1e-10):
+        self.reduction_tol = reduction_tol
+        self.exact_curvature = exact_curvature
         self.free = free
         self.lam = np.asarray(wavelengths)
         self.w = jnp.asarray(weights)
-        self.low = jnp.array([VARIABLES[n].low for n in free])
-        self.span = jnp.array([VARIABLES[n].high - VARIABLES[n].low for n in free])
+        # Each variable's position x in [0, 1] of its range: linear, or logarithmic for the variables
+        # whose effects are multiplicative (prior coordinate "log": concentrations, thickness, scales),
+        # theta = low + scale (exp(x log_span) - 1) with scale = low (ranges that exclude 0, a pure
+        # logarithm) or 1e-3 of the range (ranges from 0: logarithmic above that, 0 reachable). In
+        # linear coordinates fits crawl along valleys that are straight in the logarithms, such as
+        # melanin against a thin epidermis (their product sets its absorbance).
+        self.logarithmic = np.array([VARIABLES[n].prior == "log" for n in free])
+        low = np.array([VARIABLES[n].low for n in free])
+        high = np.array([VARIABLES[n].high for n in free])
+        self.low, self.span = jnp.asarray(low), jnp.asarray(high - low)
+        self.scale = np.where(low > 0.0, low, 1e-3 * (high - low))
+        self.log_span = np.where(self.logarithmic, np.log1p((high - low) / self.scale), 1.0)
         self.step_tol, self.stationarity_tol = step_tol, stationarity_tol
+
+    def physical(self, x):
+        """Physical values of positions x (..., f) in the ranges."""
+        xp = np if isinstance(x, np.ndarray) else jnp
+        logged = np.asarray(self.low) + self.scale * xp.expm1(xp.where(self.logarithmic, x, 0.0) * self.log_span)
+        return xp.where(self.logarithmic, logged, np.asarray(self.low) + np.asarray(self.span) * x)
+
+    def slope(self, x):
+        """d theta / d x at positions x."""
+        return jnp.where(self.logarithmic, self.scale * self.log_span * jnp.exp(jnp.where(self.logarithmic, x, 0.0) * self.log_span), self.span)
+
+    def position(self, theta: np.ndarray) -> np.ndarray:
+        """Positions in [0, 1] of physical values theta (..., f) (NumPy)."""
+        low, span = np.asarray(self.low), np.asarray(self.span)
+        logged = np.log1p(np.maximum(theta - low, 0.0) / self.scale) / self.log_span
+        return np.clip(np.where(self.logarithmic, logged, (theta - low) / span), 0.0, 1.0)
 
     def _linearise(self, measurement, x, target):
         def residual(z):
-            r = measurement.residual_of_free(self.low + self.span * z, target, self.lam, self.w)
+            r = measurement.residual_of_free(self.physical(z), target, self.lam, self.w)
             return r, r
 
         jacobian, r = jax.jacfwd(residual, has_aux=True)(x)
         return r, jacobian
 
-    def _trial(self, state: LockstepState):
-        """The next point: damped (quasi-)Newton over the variables not held on a bound, clipped
-        to the box; and the reduction of the cost its model predicts."""
+    def _exact_curvature(self, measurement, x, target, r):
+        """sum_i r_i Hessian(r_i) at x by automatic differentiation (about four Jacobians' cost for
+        three variables): the Hessian of r(x) . r held fixed."""
+        held = jax.lax.stop_gradient(r)
+        weighted = lambda z: held @ measurement.residual_of_free(self.physical(z), target, self.lam, self.w)  # noqa: E731
+        return jax.hessian(weighted)(x)
+
+    def _model_step(self, state: LockstepState, damping):
+        """The damped (quasi-)Newton step over the variables not held on a bound (not clipped), and
+        the reduction of the cost its quadratic model predicts."""
         x, at = state.point, state.carry
         gradient = at.jacobian.T @ at.residual
-        held = ((x <= 0.0) & (gradient > 0.0)) | ((x >= 1.0) & (gradient < 0.0))
+        # held: on a bound, or within _ACTIVE_BAND of it, while the gradient pushes outward; such a
+        # variable moves onto its bound and the step is solved over the others (Bertsekas's
+        # projected Newton: a clipped full step need not lower the cost, and iterates that creep
+        # towards a bound without reaching it converge only linearly)
+        to_low = (x <= _ACTIVE_BAND) & (gradient > 0.0)
+        to_high = (x >= 1.0 - _ACTIVE_BAND) & (gradient < 0.0)
+        held = to_low | to_high
+        onto_bound = jnp.where(to_low, -x, jnp.where(to_high, 1.0 - x, 0.0))
         keep = ~held
         normal = at.jacobian.T @ at.jacobian
         scale = jnp.maximum(jnp.diagonal(normal), 1e-12 * jnp.max(jnp.diagonal(normal)) + 1e-300)
         both = keep[:, None] & keep[None, :]
 
         def solve(hessian):
-            system = jnp.where(both, hessian, 0.0) + jnp.diag(jnp.where(keep, at.damping * scale, 1.0))
-            step = solve_dominant(system, jnp.where(keep, -gradient, 0.0)[:, None])[:, 0]
+            system = jnp.where(both, hessian, 0.0) + jnp.diag(jnp.where(keep, damping * scale, 1.0))
+            rhs = jnp.where(keep, -(gradient + hessian @ onto_bound), 0.0)
+            step = solve_dominant(system, rhs[:, None])[:, 0] + onto_bound
             step = jnp.where(jnp.all(jnp.isfinite(step)), step, 0.0)
             return step, -(gradient @ step + 0.5 * step @ hessian @ step)
 
         step, predicted = solve(normal + at.curvature)
         fallback, predicted_gn = solve(normal)
         use_secant = predicted > 0.0
-        step = jnp.where(use_secant, step, fallback)
-        trial = jnp.clip(x + jnp.clip(step, -0.5, 0.5), 0.0, 1.0)
-        return trial, 2.0 * jnp.where(use_secant, predicted, predicted_gn)
+        return jnp.where(use_secant, step, fallback), 2.0 * jnp.where(use_secant, predicted, predicted_gn)
+
+    def _trial(self, state: LockstepState):
+        """The next point: the damped step, clipped to the box; and the reduction its model predicts."""
+        step, predicted = self._model_step(state, state.carry.damping)
+        return jnp.clip(state.point + jnp.clip(step, -0.5, 0.5), 0.0, 1.0), predicted
 
     def _start(self, measurement, x, target, curvature):
         r, jacobian = self._linearise(measurement, x, target)
+        if self.exact_curvature:
+            curvature = self._exact_curvature(measurement, x, target, r)
         cost = jnp.sum(r**2)
         carry = _Linearisation(r, jacobian, curvature, jnp.asarray(_INITIAL_DAMPING, x.dtype), jnp.asarray(jnp.inf, x.dtype))
         return LockstepState(x, jnp.where(jnp.isfinite(cost), cost, jnp.inf), carry)
@@ -119,7 +177,10 @@ class BoundedPolish:
             relax = jnp.maximum(1.0 / 3.0, 1.0 - (2.0 * jnp.clip(gain, 0.0, 1.0) - 1.0) ** 3)
             at = state.carry
             moved = jnp.where(better, jnp.max(jnp.abs(trial - state.point)), at.moved)
-            curvature = _secant_update(at.curvature, trial - state.point, at.jacobian, at.residual, jacobian, r)
+            if self.exact_curvature:
+                curvature = self._exact_curvature(measurement, trial, target, r)
+            else:
+                curvature = _secant_update(at.curvature, trial - state.point, at.jacobian, at.residual, jacobian, r)
             new = LockstepState(trial, cost, _Linearisation(r, jacobian, curvature, jnp.maximum(at.damping * relax, 1e-12), moved))
             old = eqx.tree_at(lambda s: s.carry.damping, state, jnp.minimum(at.damping * 4.0, 1e12))
             return new.keep_where(better, old)
@@ -127,10 +188,16 @@ class BoundedPolish:
         return jax.lax.fori_loop(0, count, body, state)
 
     def _converged(self, state: LockstepState):
-        theta = self.low + self.span * state.point
-        gradient = 2.0 * (state.carry.jacobian / self.span).T @ state.carry.residual
+        theta = self.physical(state.point)
+        gradient = 2.0 * (state.carry.jacobian / self.slope(state.point)).T @ state.carry.residual
         stationary = stationarity(self.free, theta, gradient, state.cost) <= self.stationarity_tol
-        return (state.carry.moved <= self.step_tol) | stationary
+        # NL2SOL's relative function convergence: the full model step would lower the cost by no
+        # more than reduction_tol of it. Unlike the first-order test it is invariant to each
+        # variable's scale: a variable its data pin down (a large curvature) may keep a gradient
+        # that no step can turn into a lower cost in floating point.
+        predicted = self._model_step(state, jnp.asarray(_CONVERGENCE_DAMPING, state.cost.dtype))[1]
+        reduced = jnp.isfinite(predicted) & (predicted <= self.reduction_tol * state.cost)
+        return (state.carry.moved <= self.step_tol) | stationary | reduced
 
     @eqx.filter_jit
     def _enter(self, measurement, x, target, curvature):
@@ -157,8 +224,7 @@ class BoundedPolish:
         residual, Jacobian, secant curvature, damping): a round resumes where the last one ended,
         with no Jacobian spent on restarting."""
         n = len(theta0)
-        low, span = np.asarray(self.low), np.asarray(self.span)
-        x = np.clip((theta0 - low) / span, 0.0, 1.0)
+        x = self.position(np.asarray(theta0, dtype=float))
         curvature = np.zeros((n, x.shape[1], x.shape[1]))
         size = lambda count: chunk_size if fixed_batch else pad_size(count, chunk_size)  # noqa: E731
         enter = lambda *a: jax.tree_util.tree_leaves(self._enter(measurement, *a))  # noqa: E731
@@ -182,14 +248,15 @@ class BoundedPolish:
             steps[todo] += ROUND_STEPS
             todo = todo[~done[todo]]
         point = jax.tree_util.tree_unflatten(_STATE, leaves).point
-        return low + span * point, steps, done
+        return self.physical(np.asarray(point)), steps, done
 
 
 @functools.lru_cache(maxsize=16)
-def bounded_polish(free: tuple, wavelengths: tuple, weights: tuple, step_tol: float, stationarity_tol: float) -> BoundedPolish:
+def bounded_polish(free: tuple, wavelengths: tuple, weights: tuple, step_tol: float, stationarity_tol: float,
+                   exact_curvature: bool = False, reduction_tol: float = 1e-10) -> BoundedPolish:
     """One ``BoundedPolish`` per problem: its compiled rounds serve every later call (the
     measurement's values are arguments of them, not part of the instance)."""
-    return BoundedPolish(free, wavelengths, weights, step_tol, stationarity_tol)
+    return BoundedPolish(free, wavelengths, weights, step_tol, stationarity_tol, exact_curvature, reduction_tol)
 
 
 #: The structure of a polish state (its leaves travel between rounds as NumPy arrays).
