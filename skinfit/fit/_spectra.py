@@ -13,9 +13,9 @@ Pipeline for a batch of spectra (compiled once per wavelength grid, free set and
    batched while-loops run until the slowest member finishes).
 3. The spectra that have not converged (most measured spectra: large-residual problems, where
    Gauss-Newton converges linearly or not at all) are gathered into small batches for bounded
-   Levenberg-Marquardt with a secant curvature term (``BoundedPolish``, in the variables' linear or
-   logarithmic range positions), then with the exact curvature, and the few left go to optimistix
-   Levenberg-Marquardt.
+   Levenberg-Marquardt with a secant curvature term (``BoundedPolish``, in the variables' linear
+   range positions), then with the exact curvature (in logarithmic positions for the multiplicative
+   variables), and the few left go to optimistix Levenberg-Marquardt.
 4. Diagnostics at the optimum: RMS residual, standard errors from the Jacobian, CIEDE2000 between
    measured and fitted colour under D65, iteration count and a status code per spectrum.
 """
@@ -137,7 +137,7 @@ class SolverSettings:
     start_groups: tuple[int, int] = (2, 4)
     transport_steps: int = 40
     polish_steps: int = 60
-    newton_steps: int = 60
+    newton_steps: int = 120
 
 
 #: Default weight of the CIELAB (D65) colour difference in the fit's residual, per unit of Delta E:
@@ -277,7 +277,7 @@ def _fit_transport(measurement, lam, w, target, settings, chunk_size, progress):
     u, steps, _ = _solver(diffusion.static_key, wavelengths, weights, settings).run(diffusion, target, chunk_size, progress)
     theta = np.stack([from_unbounded(name, np.asarray(u[:, i])) for i, name in enumerate(measurement.free)], axis=1)
     polish = bounded_polish(measurement.free, wavelengths, weights, settings.step_tol, settings.stationarity_tol,
-                            reduction_tol=settings.reduction_tol)
+                            reduction_tol=settings.reduction_tol, logarithmic=False)
     theta, more, converged = polish.run(measurement, theta, target, settings.transport_steps, chunk_size, progress)
     u = np.stack([to_unbounded(name, theta[:, i]) for i, name in enumerate(measurement.free)], axis=1)
     return u, steps + more, converged
@@ -483,7 +483,7 @@ class _Solver:
         if todo.size and s.polish_steps:  # bounded quasi-Newton for what Gauss-Newton left
             theta = np.stack([from_unbounded(n, np.asarray(u[todo, i])) for i, n in enumerate(measurement.free)], axis=1)
             polish = bounded_polish(measurement.free, self.wavelengths, tuple(np.asarray(self.w).tolist()), s.step_tol, s.stationarity_tol,
-                                    reduction_tol=s.reduction_tol)
+                                    reduction_tol=s.reduction_tol, logarithmic=False)
             theta, more, done[todo] = polish.run(measurement, theta, target[todo], s.polish_steps, _GATHERED_BATCH, False, fixed_batch=True)
             u[todo] = np.stack([to_unbounded(n, theta[:, i]) for i, n in enumerate(measurement.free)], axis=1)
             steps[todo] += more
