@@ -86,5 +86,22 @@ def enable_compilation_cache() -> Path | None:
     jax.config.update("jax_compilation_cache_dir", str(folder))
     jax.config.update("jax_persistent_cache_min_compile_time_secs", MIN_COMPILE_SECONDS)
     if importlib.util.find_spec("filelock") is not None:  # a dependency; JAX needs it for the bound
+        _backfill_access_times(folder)
         jax.config.update("jax_compilation_cache_max_size", MAX_CACHE_BYTES)
     return folder
+
+
+def _backfill_access_times(folder: Path) -> None:
+    """Give every cached program its access-time file, from the program's modification time.
+
+    JAX's bounded cache keeps ``<key>-atime`` (nanoseconds, 8 bytes little-endian) beside each
+    ``<key>-cache``; programs written while the cache had no bound have none, and then every later
+    write fails (FileNotFoundError while choosing what to evict: a warning per compiled program,
+    seen 2026-12-03 on a folder filled before the bound was set) and nothing more is cached."""
+    try:
+        for program in folder.glob("*-cache"):
+            access = program.with_name(program.name.removesuffix("-cache") + "-atime")
+            if not access.exists():
+                access.write_bytes(program.stat().st_mtime_ns.to_bytes(8, "little"))
+    except OSError:  # a folder we cannot read or write: JAX will report it where it matters
+        pass

@@ -61,3 +61,22 @@ def test_a_folder_others_may_write_to_is_not_used(tmp_path):
     (shared / machine_key()).mkdir(mode=0o777)
     os.chmod(shared / machine_key(), 0o777)
     assert not _probe(tmp_path)["folder"]
+
+
+def test_programs_cached_before_the_size_bound_do_not_break_later_writes(tmp_path):
+    """A program cached without its access-time file (written while the cache had no size bound) gets
+    one at import: later writes then succeed, where JAX's eviction failed on every one."""
+    from skinfit._compilation_cache import machine_key
+
+    folder = tmp_path / "cache" / "jax" / machine_key()
+    folder.mkdir(parents=True, mode=0o700)
+    (tmp_path / "cache").chmod(0o700)
+    (tmp_path / "cache" / "jax").chmod(0o700)
+    (folder / "jit_old_program-0123-cache").write_bytes(b"\0" * 64)
+    env = {k: v for k, v in os.environ.items() if k not in ("SKINFIT_COMPILATION_CACHE", "JAX_COMPILATION_CACHE_DIR")}
+    env.update(SKINFIT_CACHE_DIR=str(tmp_path / "cache"))
+    done = subprocess.run([sys.executable, "-c", PROBE], env=env, capture_output=True, text=True, timeout=300)
+    assert done.returncode == 0, done.stderr[-2000:]
+    assert "Error writing persistent compilation cache entry" not in done.stderr
+    assert (folder / "jit_old_program-0123-atime").exists()
+    assert json.loads(done.stdout.strip().splitlines()[-1])["files"] > 2  # the new program was written

@@ -481,26 +481,27 @@ class _Solver:
             done[todo] = self.diagnostics(measurement, u[todo], target[todo], _GATHERED_BATCH, fixed_batch=True)[2] <= s.stationarity_tol
         todo = np.flatnonzero(~done)
         if todo.size and s.polish_steps:  # bounded quasi-Newton for what Gauss-Newton left
-            theta = np.stack([from_unbounded(n, np.asarray(u[todo, i])) for i, n in enumerate(measurement.free)], axis=1)
-            polish = bounded_polish(measurement.free, self.wavelengths, tuple(np.asarray(self.w).tolist()), s.step_tol, s.stationarity_tol,
-                                    reduction_tol=s.reduction_tol, logarithmic=False)
-            theta, more, done[todo] = polish.run(measurement, theta, target[todo], s.polish_steps, _GATHERED_BATCH, False, fixed_batch=True)
-            u[todo] = np.stack([to_unbounded(n, theta[:, i]) for i, n in enumerate(measurement.free)], axis=1)
-            steps[todo] += more
+            self._polish(measurement, u, steps, done, target, todo, s.polish_steps, logarithmic=False)
         todo = np.flatnonzero(~done)
         if todo.size and s.newton_steps:  # the same with the exact second-order term, for valleys
-            theta = np.stack([from_unbounded(n, np.asarray(u[todo, i])) for i, n in enumerate(measurement.free)], axis=1)
-            newton = bounded_polish(measurement.free, self.wavelengths, tuple(np.asarray(self.w).tolist()), s.step_tol, s.stationarity_tol,
-                                    exact_curvature=True, reduction_tol=s.reduction_tol)
-            theta, more, done[todo] = newton.run(measurement, theta, target[todo], s.newton_steps, _GATHERED_BATCH, False, fixed_batch=True)
-            u[todo] = np.stack([to_unbounded(n, theta[:, i]) for i, n in enumerate(measurement.free)], axis=1)
-            steps[todo] += more
+            self._polish(measurement, u, steps, done, target, todo, s.newton_steps, exact_curvature=True)
         todo = np.flatnonzero(~done)
         if todo.size:  # Levenberg-Marquardt for the rest
             resume = lambda a, t: self._resume(measurement, a, t, s.max_steps)  # noqa: E731
             u[todo], steps_lm, done[todo] = map_batches(resume, (u[todo], target[todo]), _GATHERED_BATCH)
             steps[todo] += steps_lm
         return u, steps, done
+
+    def _polish(self, measurement, u, steps, done, target, todo, max_steps, **options):
+        """Bounded polish (``bounded_polish`` with ``options``) of the rows ``todo``, updating u, steps
+        and done in place."""
+        s = self.settings
+        theta = np.stack([from_unbounded(n, np.asarray(u[todo, i])) for i, n in enumerate(measurement.free)], axis=1)
+        polish = bounded_polish(measurement.free, self.wavelengths, tuple(np.asarray(self.w).tolist()), s.step_tol, s.stationarity_tol,
+                                reduction_tol=s.reduction_tol, **options)
+        theta, more, done[todo] = polish.run(measurement, theta, target[todo], max_steps, _GATHERED_BATCH, False, fixed_batch=True)
+        u[todo] = np.stack([to_unbounded(n, theta[:, i]) for i, n in enumerate(measurement.free)], axis=1)
+        steps[todo] += more
 
     # -- diagnostics ------------------------------------------------------------------------
     @eqx.filter_jit
