@@ -44,8 +44,8 @@ class PlainSolver(_spectra._Solver):
     """The solver with the Gauss-Newton step it had before 2026-12-02: the sine coordinates, no bound
     handling (a bound is u = +-pi/2, where the variable's Jacobian column vanishes)."""
 
-    def _propose(self, measurement, u, target):
-        jacobian, r = jax.jacfwd(lambda x: (self.residual(measurement, x, target),) * 2, has_aux=True)(u)
+    def _propose(self, measurement, u, evaluation, target):
+        r, jacobian = measurement.linearised_residual(*evaluation, target, self.lam, self.w)
         step = solve_normal(jacobian.T @ jacobian, -(jacobian.T @ r))
         return jnp.sum(r**2), jnp.clip(step, -0.5, 0.5)
 
@@ -53,7 +53,7 @@ class PlainSolver(_spectra._Solver):
 def walk(solver, measurement, u, target):
     """``STEPS`` undamped steps of ``solver`` from u: the largest |step| component at each."""
     def body(u, _):
-        _, step = solver._propose(measurement, u, target)
+        _, step = solver._propose(measurement, u, solver._evaluate(measurement, u), target)
         return u + step, jnp.max(jnp.abs(step))
 
     return jax.lax.scan(body, u, None, length=STEPS)[1]

@@ -379,9 +379,17 @@ class _Solver:
     # vanish), as projected Gauss-Newton: a variable on a bound whose gradient pushes outward is held
     # there. The same step is taken in u (as before) for variables far from the bounds, and in x,
     # clipped to the box, for those near one or crossing one.
-    def _propose(self, measurement, u, target):
-        """Cost at u and the projected Gauss-Newton step from u (in u)."""
-        jacobian_u, r = jax.jacfwd(lambda x: (self.residual(measurement, x, target),) * 2, has_aux=True)(u)
+    def _evaluate(self, measurement, u):
+        """The model's evaluation at u and its Jacobian with respect to u: the costly part of an
+        iteration (``MeasurementModel.evaluation``)."""
+        f = lambda x: (measurement.evaluation(measurement.values(x), self.lam, x.dtype),) * 2  # noqa: E731
+        jacobian, evaluation = jax.jacfwd(f, has_aux=True)(u)
+        return evaluation, jacobian
+
+    def _propose(self, measurement, u, evaluation, target):
+        """Cost at u and the projected Gauss-Newton step from u (in u), from the model's evaluation
+        at u and its Jacobian."""
+        r, jacobian_u = measurement.linearised_residual(*evaluation, target, self.lam, self.w)
         cost = jnp.sum(r**2)
         x = 0.5 * (1.0 + jnp.sin(u))
         slope = 0.5 * jnp.cos(u)  # dx/du, never exactly 0 in floating point (cos(pi/2) = 6e-17)
@@ -403,19 +411,31 @@ class _Solver:
         return jnp.where(ok, cost, jnp.inf), jnp.where(ok, step, 0.0)
 
     def _iterate(self, measurement, state, target, count):
-        """``count`` iterations from ``state``; a state with no proposal yet (cost NaN) spends its
-        first iteration evaluating the start (one traced copy of the Jacobian per call site)."""
+        """``count`` iterations (model evaluations) from ``state``; a state with no proposal yet
+        (cost NaN) spends its first evaluation on the start.
+
+        Each loop step first proposes from the evaluation the previous step left in the loop's carry,
+        then evaluates the next trial: the residual's Jacobian is formed from a carried buffer, which
+        XLA does not fuse with the model (see ``MeasurementModel.evaluation``)."""
         round_off = 1e3 * jnp.finfo(state.point.dtype).eps ** 2 * jnp.sum((self.w * target) ** 2)
 
-        def body(_, states):
-            best, current = states
-            fresh = jnp.isnan(current.cost)
-            trial = jnp.where(fresh, current.point, current.point + current.carry)
-            current = LockstepState(trial, *self._propose(measurement, trial, target))
-            better = fresh | (current.cost <= best.cost + round_off)  # equal within round-off: converged runs end there
+        def decide(best, trial, evaluation):
+            current = LockstepState(trial, *self._propose(measurement, trial, evaluation, target))
+            better = jnp.isnan(best.cost) | (current.cost <= best.cost + round_off)  # equal within round-off: converged runs end there
             return current.keep_where(better, best), current
 
-        return jax.lax.fori_loop(0, count, body, (state, state))[0]
+        def body(k, carry):
+            best, current, trial, evaluation = carry
+            # (the first step has nothing to decide yet: its proposal is computed and dropped)
+            decided = decide(best, trial, evaluation)
+            best, current = jax.tree_util.tree_map(lambda a, b: jnp.where(k > 0, a, b), decided, (best, current))
+            trial = jnp.where(jnp.isnan(current.cost), current.point, current.point + current.carry)
+            return best, current, trial, self._evaluate(measurement, trial)
+
+        evaluation = jax.eval_shape(lambda u: self._evaluate(measurement, u), state.point)
+        evaluation = jax.tree_util.tree_map(lambda a: jnp.zeros(a.shape, a.dtype), evaluation)
+        best, _, trial, evaluation = jax.lax.fori_loop(0, count, body, (state, state, state.point, evaluation))
+        return decide(best, trial, evaluation)[0]
 
     def _unevaluated(self, u) -> LockstepState:
         return LockstepState(u, jnp.full(u.shape[:-1], jnp.nan, u.dtype), jnp.zeros_like(u))

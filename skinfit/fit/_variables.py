@@ -221,27 +221,49 @@ class MeasurementModel(eqx.Module):
     def residual(self, u, target, wavelengths_nm, weights):
         """The least-squares residual of one fit at u: the weighted spectrum (m rows), then (where they
         are on) the colour term (``colour_rows``) and the prior's rows."""
-        values = self.values(u)
-        return self._residual(values, self.spectrum_of_values(values, wavelengths_nm, u.dtype), target, wavelengths_nm, weights)
+        return self.residual_of_evaluation(self.evaluation(self.values(u), wavelengths_nm, u.dtype), target, wavelengths_nm, weights)
 
     def residual_of_free(self, theta, target, wavelengths_nm, weights):
         """``residual`` at the physical values ``theta`` of the free variables."""
-        values = self._with_fixed({name: theta[..., i] for i, name in enumerate(self.free)}, theta)
-        return self._residual(values, self.spectrum_of_values(values, wavelengths_nm, theta.dtype), target, wavelengths_nm, weights)
+        return self.residual_of_evaluation(self.evaluation_of_free(theta, wavelengths_nm), target, wavelengths_nm, weights)
 
     @property
     def colour_rows(self) -> int:
         """Rows of the colour term in ``residual`` (CIELAB L*, a*, b*), after the spectrum's."""
         return 3 if self.colour_weight else 0
 
-    def _residual(self, values, spectrum, target, wavelengths_nm, weights):
+    # The residual in two parts: the costly ``evaluation`` (the model spectrum, and the prior's rows),
+    # and the cheap rest (weights, colour term). Solvers that differentiate the evaluation alone and
+    # form the residual's Jacobian from its Jacobian (``linearised_residual``) in a later step of a
+    # loop save a third of a DJ2006 Jacobian on CPU: differentiated in one piece, XLA copies the
+    # multipole's last fusion into the colour term's sum over wavelengths, so it runs twice.
+    def evaluation(self, values: dict, wavelengths_nm, dtype):
+        """The model spectrum (m,) at ``values``, then the prior's rows (where it is on)."""
+        spectrum = self.spectrum_of_values(values, wavelengths_nm, dtype)
+        return jnp.concatenate([spectrum, self.prior_residual(values)], axis=-1) if self.use_prior else spectrum
+
+    def evaluation_of_free(self, theta, wavelengths_nm):
+        """``evaluation`` at the physical values ``theta`` (..., n_free) of the free variables."""
+        values = {name: theta[..., i] for i, name in enumerate(self.free)}
+        return self.evaluation(self._with_fixed(values, theta), wavelengths_nm, theta.dtype)
+
+    def residual_of_evaluation(self, evaluation, target, wavelengths_nm, weights):
+        """The residual from an ``evaluation``: weighted spectrum, colour term, prior rows."""
+        m = target.shape[-1]
+        spectrum = evaluation[..., :m]
         parts = [weights * (spectrum - target)]
         if self.colour_rows:
             xyz = jnp.asarray(_xyz_weights(tuple(np.asarray(wavelengths_nm, dtype=float).tolist())), spectrum.dtype)
             parts.append(self.colour_weight * (_lab(spectrum @ xyz.T, xyz) - _lab(target @ xyz.T, xyz)))
-        if self.use_prior:
-            parts.append(self.prior_residual(values))
+        parts.append(evaluation[..., m:])
         return jnp.concatenate(parts, axis=-1)
+
+    def linearised_residual(self, evaluation, jacobian, target, wavelengths_nm, weights):
+        """(residual, its Jacobian) from one ``evaluation`` (k,) and its Jacobian (k, n) with
+        respect to any n coordinates: the chain rule through the cheap rest, one JVP per column."""
+        rest = lambda e: self.residual_of_evaluation(e, target, wavelengths_nm, weights)  # noqa: E731
+        residual, tangent = jax.linearize(rest, evaluation)
+        return residual, jax.vmap(tangent, in_axes=1, out_axes=1)(jacobian)
 
     def prior_residual(self, values: dict):
         """noise_rms (z - mean) / sd for each free variable the prior covers (z: prior coordinate)."""
