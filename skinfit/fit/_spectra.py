@@ -382,7 +382,7 @@ class _Solver:
     def _evaluate(self, measurement, u):
         """The model's evaluation at u and its Jacobian with respect to u: the costly part of an
         iteration (``MeasurementModel.evaluation``)."""
-        f = lambda x: (measurement.evaluation(measurement.values(x), self.lam, x.dtype),) * 2  # noqa: E731
+        f = lambda x: (measurement.evaluation(x, self.lam),) * 2  # noqa: E731
         jacobian, evaluation = jax.jacfwd(f, has_aux=True)(u)
         return evaluation, jacobian
 

@@ -25,7 +25,7 @@ def test_linearised_residual_is_the_residual_and_its_jacobian(prior, colour_weig
 
     whole = lambda x: measurement.residual(x, target, WAVELENGTHS, w)  # noqa: E731
     expected_r, expected_j = whole(u), jax.jacfwd(whole)(u)
-    evaluate = lambda x: measurement.evaluation(measurement.values(x), WAVELENGTHS, x.dtype)  # noqa: E731
+    evaluate = lambda x: measurement.evaluation(x, WAVELENGTHS)  # noqa: E731
     r, j = measurement.linearised_residual(evaluate(u), jax.jacfwd(evaluate)(u), target, WAVELENGTHS, w)
 
     prior_rows = measurement.prior_residual(measurement.values(u)).shape[-1] if prior else 0
