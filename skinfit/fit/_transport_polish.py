@@ -39,6 +39,11 @@ from ._variables import VARIABLES, stationarity
 
 #: Lock-step iterations between two gatherings of the unconverged spectra.
 ROUND_STEPS = 6
+#: Batch of the rounds with fixed batches once few spectra are left (at most twice this many).
+#: Measured in fits on a 2-core CPU (DJ2006, 31 wavelengths): a round costs 0.9 ms in a batch of
+#: 16, 1.9 ms in one of 64 and 2.6 ms in one of 128 (the per-kernel cost of the loop's small-matrix
+#: algebra dominates small batches), so large batches suit many spectra and small ones the last few.
+STRAGGLER_BATCH = 16
 _INITIAL_DAMPING = 1e-3
 _ACTIVE_BAND = 1e-4  # range fraction from a bound within which a variable pushed outward is held on it
 _CONVERGENCE_DAMPING = 1e-12  # keeps the model step's system regular in the convergence test
@@ -115,13 +120,20 @@ class BoundedPolish:
         logged = np.log1p(np.maximum(theta - low, 0.0) / self.scale) / self.log_span
         return np.clip(np.where(self.logarithmic, logged, (theta - low) / span), 0.0, 1.0)
 
-    def _linearise(self, measurement, x, target):
-        def residual(z):
-            r = measurement.residual_of_free(self.physical(z), target, self.lam, self.w)
-            return r, r
+    def _evaluate(self, measurement, x):
+        """The model's evaluation (``MeasurementModel.evaluation``) at positions x and its Jacobian
+        with respect to x: the costly part of an iteration."""
+        f = lambda z: (measurement.evaluation_of_free(self.physical(z), self.lam),) * 2  # noqa: E731
+        jacobian, evaluation = jax.jacfwd(f, has_aux=True)(x)
+        return evaluation, jacobian
 
-        jacobian, r = jax.jacfwd(residual, has_aux=True)(x)
-        return r, jacobian
+    def _linearised(self, measurement, evaluation, target):
+        """(residual, d residual / dx) from an evaluation and its Jacobian (``_evaluate``)."""
+        return measurement.linearised_residual(*evaluation, target, self.lam, self.w)
+
+    def _linearise(self, measurement, x, target):
+        """(residual, d residual / dx) at positions x."""
+        return self._linearised(measurement, self._evaluate(measurement, x), target)
 
     def _exact_curvature(self, measurement, x, target, r):
         """sum_i r_i Hessian(r_i) at x by automatic differentiation (about four Jacobians' cost for
@@ -165,34 +177,48 @@ class BoundedPolish:
         step, predicted = self._model_step(state, state.carry.damping)
         return jnp.clip(state.point + jnp.clip(step, -0.5, 0.5), 0.0, 1.0), predicted
 
-    def _start(self, measurement, x, target, curvature):
-        r, jacobian = self._linearise(measurement, x, target)
-        if self.exact_curvature:
-            curvature = self._exact_curvature(measurement, x, target, r)
-        cost = jnp.sum(r**2)
-        carry = _Linearisation(r, jacobian, curvature, jnp.asarray(_INITIAL_DAMPING, x.dtype), jnp.asarray(jnp.inf, x.dtype))
-        return LockstepState(x, jnp.where(jnp.isfinite(cost), cost, jnp.inf), carry)
-
     def _iterate(self, measurement, state: LockstepState, target, count: int) -> LockstepState:
-        def body(_, state):
-            trial, predicted = self._trial(state)
-            r, jacobian = self._linearise(measurement, trial, target)
+        """``count`` iterations (model evaluations) from ``state``; a state not entered yet (cost
+        NaN: no linearisation) spends its first evaluation on its point.
+
+        As in the warm start (``_spectra._Solver._iterate``), each loop step first decides on the
+        trial the previous step evaluated, from the evaluation left in the loop's carry, then
+        proposes and evaluates the next trial: the residual's Jacobian is formed from a carried
+        buffer, which XLA does not fuse with the model (see ``MeasurementModel.evaluation``)."""
+
+        def decide(state, trial, predicted, evaluation):
+            r, jacobian = self._linearised(measurement, evaluation, target)
             cost = jnp.sum(r**2)
-            better = jnp.isfinite(cost) & (cost <= state.cost)
+            entering = jnp.isnan(state.cost)
+            better = entering | (jnp.isfinite(cost) & (cost <= state.cost))
             gain = (state.cost - cost) / jnp.maximum(predicted, 1e-300)
             # Nielsen's damping update: relax after steps the model predicted well
             relax = jnp.maximum(1.0 / 3.0, 1.0 - (2.0 * jnp.clip(gain, 0.0, 1.0) - 1.0) ** 3)
             at = state.carry
-            moved = jnp.where(better, jnp.max(jnp.abs(trial - state.point)), at.moved)
+            moved = jnp.where(entering, jnp.inf, jnp.where(better, jnp.max(jnp.abs(trial - state.point)), at.moved))
             if self.exact_curvature:
                 curvature = self._exact_curvature(measurement, trial, target, r)
             else:
-                curvature = _secant_update(at.curvature, trial - state.point, at.jacobian, at.residual, jacobian, r)
-            new = LockstepState(trial, cost, _Linearisation(r, jacobian, curvature, jnp.maximum(at.damping * relax, 1e-12), moved))
+                update = _secant_update(at.curvature, trial - state.point, at.jacobian, at.residual, jacobian, r)
+                curvature = jnp.where(entering, at.curvature, update)
+            damping = jnp.where(entering, at.damping, jnp.maximum(at.damping * relax, 1e-12))
+            new = LockstepState(trial, jnp.where(jnp.isfinite(cost), cost, jnp.inf), _Linearisation(r, jacobian, curvature, damping, moved))
             old = eqx.tree_at(lambda s: s.carry.damping, state, jnp.minimum(at.damping * 4.0, 1e12))
             return new.keep_where(better, old)
 
-        return jax.lax.fori_loop(0, count, body, state)
+        def body(k, carry):
+            state, trial, predicted, evaluation = carry
+            # the first step has nothing to decide yet (k is not batched: a true branch, which spares
+            # the exact stage a Hessian)
+            state = jax.lax.cond(k > 0, decide, lambda state, *_: state, state, trial, predicted, evaluation)
+            trial, predicted = self._trial(state)
+            trial = jnp.where(jnp.isnan(state.cost), state.point, trial)
+            return state, trial, predicted, self._evaluate(measurement, trial)
+
+        evaluation = jax.eval_shape(lambda x: self._evaluate(measurement, x), state.point)
+        evaluation = jax.tree_util.tree_map(lambda a: jnp.zeros(a.shape, a.dtype), evaluation)
+        carry = (state, state.point, jnp.zeros_like(state.cost), evaluation)
+        return decide(*jax.lax.fori_loop(0, count, body, carry))
 
     def _converged(self, state: LockstepState):
         theta = self.physical(state.point)
@@ -207,11 +233,6 @@ class BoundedPolish:
         return (state.carry.moved <= self.step_tol) | stationary | reduced
 
     @eqx.filter_jit
-    def _enter(self, measurement, x, target, curvature):
-        """The starting states of a batch: one linearisation each."""
-        return jax.vmap(lambda a, t, c: self._start(measurement, a, t, c))(x, target, curvature)
-
-    @eqx.filter_jit
     def _round(self, measurement, state: LockstepState, target):
         """``ROUND_STEPS`` iterations of a batch of states; returns (states, converged)."""
 
@@ -224,21 +245,29 @@ class BoundedPolish:
     def run(self, measurement, theta0: np.ndarray, target: np.ndarray, max_steps: int, chunk_size: int, progress,
             fixed_batch: bool = False):
         """Polish physical values ``theta0`` (n, f) against ``target`` (n, m); returns
-        (theta, iterations, converged). ``fixed_batch``: batches of exactly ``chunk_size`` (one
-        compiled program per problem; cheap models), else of the size that is left.
+        (theta, iterations, converged). ``fixed_batch``: batches of ``chunk_size``, or of
+        ``STRAGGLER_BATCH`` for the few left after the first rounds (two compiled programs per
+        problem, whatever the counts; cheap models), else of the size that is left.
 
         Between rounds the unconverged are gathered and each carries its whole state (point,
         residual, Jacobian, secant curvature, damping): a round resumes where the last one ended,
-        with no Jacobian spent on restarting."""
-        n = len(theta0)
+        with no Jacobian spent on restarting. The first round spends its first evaluation on the
+        starting points."""
+        n, m = target.shape
         x = self.position(np.asarray(theta0, dtype=float))
-        curvature = np.zeros((n, x.shape[1], x.shape[1]))
-        size = lambda count: chunk_size if fixed_batch else pad_size(count, chunk_size)  # noqa: E731
-        enter = lambda *a: jax.tree_util.tree_leaves(self._enter(measurement, *a))  # noqa: E731
-        leaves = map_batches(enter, (x, target, curvature), size(n), progress, "bounded fit")
+        f = x.shape[1]
+        rows = m + measurement.colour_rows + measurement.prior_rows
+        unentered = LockstepState(x, np.full(n, np.nan), _Linearisation(
+            np.zeros((n, rows)), np.zeros((n, rows, f)), np.zeros((n, f, f)), np.full(n, _INITIAL_DAMPING), np.full(n, np.inf)))
+        leaves = jax.tree_util.tree_leaves(unentered)
         done = np.zeros(n, dtype=bool)
-        steps = np.ones(n, dtype=np.int64)  # the entering linearisation
+        steps = np.zeros(n, dtype=np.int64)
         todo = np.arange(n)
+
+        def size(count):
+            if not fixed_batch:
+                return pad_size(count, chunk_size)
+            return STRAGGLER_BATCH if count <= 2 * STRAGGLER_BATCH else chunk_size
 
         def resume(*arrays):
             state, converged = self._round(measurement, jax.tree_util.tree_unflatten(_STATE, arrays[:-1]), arrays[-1])
@@ -247,8 +276,8 @@ class BoundedPolish:
         for _ in range(max(1, -(-max_steps // ROUND_STEPS))):
             if not todo.size:
                 break
-            # fixed_batch: every round in batches of chunk_size (padded), one compilation whatever is
-            # left; otherwise the batch shrinks with what is left (for costly direct transport)
+            # fixed_batch: batches of fixed sizes (padded), compiled once whatever is left; otherwise
+            # the batch shrinks with what is left (for costly direct transport)
             *out, done[todo] = map_batches(resume, (*(a[todo] for a in leaves), target[todo]), size(todo.size), progress, "bounded fit")
             for full, part in zip(leaves, out):
                 full[todo] = part

@@ -174,14 +174,16 @@ class MeasurementModel(eqx.Module):
         return treedef, tuple(leaves), jax.tree_util.tree_structure(dynamic)
 
     def values(self, u) -> dict:
-        """The set variables (free from u, fixed ones) as a dict of arrays of u's batch shape."""
+        """The set variables (free from u, fixed ones) as a dict of arrays of u's batch shape (NumPy
+        for NumPy u)."""
         values = {name: from_unbounded(name, u[..., i]) for i, name in enumerate(self.free)}
         return self._with_fixed(values, u)
 
     def _with_fixed(self, values, like):
-        fixed = jnp.asarray(self.fixed_values, like.dtype)
+        xp = np if isinstance(like, np.ndarray) else jnp  # NumPy stays NumPy (no eager JAX)
+        fixed = xp.asarray(self.fixed_values, like.dtype)
         for i, name in enumerate(self.fixed_names):
-            values[name] = jnp.broadcast_to(fixed[i], like.shape[:-1])
+            values[name] = xp.broadcast_to(fixed[i], like.shape[:-1])
         return values
 
     def spectrum(self, u, wavelengths_nm):
@@ -231,6 +233,11 @@ class MeasurementModel(eqx.Module):
     def colour_rows(self) -> int:
         """Rows of the colour term in ``residual`` (CIELAB L*, a*, b*), after the spectrum's."""
         return 3 if self.colour_weight else 0
+
+    @property
+    def prior_rows(self) -> int:
+        """Rows of the prior term in ``residual``, after the colour rows."""
+        return sum(name in self.free for name in self.skin.prior.names) if self.use_prior else 0
 
     # The residual in two parts: the costly evaluation (the model spectrum, and the prior's rows) and
     # the cheap rest (weights, colour term). Solvers that differentiate the evaluation alone and form

@@ -167,17 +167,20 @@ def test_transport_fit_recovers_transport_spectra_where_diffusion_cannot():
 @pytest.mark.slow
 def test_transport_fit_converges_on_a_measured_spectrum_far_from_the_model():
     """A NIST spectrum (RMS residual ~0.05, far above its noise): the bounded quasi-Newton polish
-    still reaches first-order optimality, and lowers the residual below diffusion's."""
+    still reaches the optimum (a Gauss-Newton step from the fit, with the variables a bound holds
+    kept on it, moves no variable by 1e-6 of its range), and lowers the residual below diffusion's.
+
+    (Stationarity as a fraction of the cost is no test here: a variable the data pin down keeps a
+    gradient of 1e-4 of the cost per range 6e-9 of its range from the optimum.)"""
     import jax
     import jax.numpy as jnp
 
-    from skinfit.fit import measurement_model
-    from skinfit.fit import stationarity as _stationarity
+    from skinfit.fit import VARIABLES, measurement_model
     from skinfit.io import read_nist
 
     nist = read_nist(Path(__file__).parents[2] / "data" / "nist_skin_reflectance_250-1000nm.csv")
     spectrum = np.interp(WL_COARSE, nist.wavelengths_nm, nist.average[2])
-    # a purely spectral fit (no colour term), so that the stationarity below is of the cost it minimised
+    # a purely spectral fit (no colour term), so that the step below is of the cost it minimised
     fit = fit_spectra(WL_COARSE, spectrum, model=DJ2006, method="transport-direct", colour_weight=0.0, progress=False)
     diffusion = fit_spectra(WL_COARSE, spectrum, model=DJ2006, colour_weight=0.0, progress=False)
     assert fit.status == FitStatus.SUCCESS and diffusion.status == FitStatus.SUCCESS
@@ -186,9 +189,15 @@ def test_transport_fit_converges_on_a_measured_spectrum_far_from_the_model():
                               colour_weight=0.0)
     theta = jnp.array([fit.parameters[k] for k in CHROMOPHORES])
     residual = lambda th: model.spectrum_of_free(th, jnp.asarray(WL_COARSE)) - spectrum  # noqa: E731
-    r = residual(theta)
-    gradient = 2.0 * jax.jacfwd(residual)(theta).T @ r
-    assert float(_stationarity(CHROMOPHORES, theta, gradient, jnp.sum(r**2))) <= 1e-5
+    r, jacobian = np.asarray(residual(theta)), np.asarray(jax.jacfwd(residual)(theta))
+    low = np.array([VARIABLES[k].low for k in CHROMOPHORES])
+    span = np.array([VARIABLES[k].high for k in CHROMOPHORES]) - low
+    gradient = jacobian.T @ r
+    offset = (np.asarray(theta) - low) / span
+    held = ((offset <= 1e-9) & (gradient > 0)) | ((offset >= 1.0 - 1e-9) & (gradient < 0))
+    step = -np.linalg.lstsq(jacobian[:, ~held], r, rcond=None)[0]
+    assert np.max(np.abs(step) / span[~held]) <= 1e-6
+    assert np.sum(r**2) - np.sum((r + jacobian[:, ~held] @ step) ** 2) <= 1e-10 * np.sum(r**2)
 
 
 def test_transport_with_a_port_is_energy_corrected():
