@@ -14,12 +14,13 @@ WAVELENGTHS = np.arange(400.0, 701.0, 10.0)
 
 @pytest.mark.parametrize("prior", [False, True])
 @pytest.mark.parametrize("colour_weight", [0.0, _spectra.COLOUR_WEIGHT])
-def test_linearised_residual_is_the_residual_and_its_jacobian(prior, colour_weight):
+@pytest.mark.parametrize("free", [("melanin", "melanin_blend", "haemoglobin", "oil"), ("melanin", "haemoglobin", "oil")])
+def test_linearised_residual_is_the_residual_and_its_jacobian(prior, colour_weight, free):
     skin = skinfit.SkinModel.default()
-    free = ("melanin", "melanin_blend", "haemoglobin", "oil")
-    measurement = _spectra.measurement_model(skin, free, None, None, specular_included_deg=8.0, colour_weight=colour_weight,
+    fixed = None if "melanin_blend" in free else {"melanin_blend": 0.3}
+    measurement = _spectra.measurement_model(skin, free, fixed, None, specular_included_deg=8.0, colour_weight=colour_weight,
                                              prior=prior)
-    u = jnp.asarray([-0.9, 0.2, -1.1, 0.3])
+    u = jnp.asarray([-0.9, 0.2, -1.1, 0.3][: len(free)])
     target = jnp.asarray(skinfit.diffuse_reflectance(skinfit.preset("medium"), WAVELENGTHS)) * 1.05
     w = jnp.full(WAVELENGTHS.size, 2.0)
 
@@ -28,9 +29,11 @@ def test_linearised_residual_is_the_residual_and_its_jacobian(prior, colour_weig
     evaluate = lambda x: measurement.evaluation(x, WAVELENGTHS)  # noqa: E731
     r, j = measurement.linearised_residual(evaluate(u), jax.jacfwd(evaluate)(u), target, WAVELENGTHS, w)
 
+    # the row counts the polish sizes its carried state by
     prior_rows = measurement.prior_residual(measurement.values(u)).shape[-1] if prior else 0
-    assert prior_rows == (len(free) if prior else 0)
-    rows = WAVELENGTHS.size + measurement.colour_rows + prior_rows
+    assert measurement.prior_rows == prior_rows == (len(free) if prior else 0)
+    assert measurement.colour_rows == (3 if colour_weight else 0)
+    rows = WAVELENGTHS.size + measurement.colour_rows + measurement.prior_rows
     assert r.shape == expected_r.shape == (rows,) and j.shape == expected_j.shape == (rows, len(free))
     np.testing.assert_allclose(r, expected_r, rtol=1e-12, atol=1e-14)
     np.testing.assert_allclose(j, expected_j, rtol=1e-10, atol=1e-12)
