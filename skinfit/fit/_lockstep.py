@@ -38,3 +38,18 @@ class LockstepState(eqx.Module):
             return jnp.where(mask, a, b)
 
         return jax.tree_util.tree_map(select, self, other)
+
+
+# The solvers' loops differentiate the model's evaluation in one loop step and use it in the next
+# (see ``MeasurementModel.evaluation``); these two helpers are that evaluation and the loop's
+# first, placeholder carry.
+def evaluate_with_jacobian(evaluate, point):
+    """(evaluate(point), its forward-mode Jacobian with respect to point) from one pass."""
+    jacobian, value = jax.jacfwd(lambda x: (evaluate(x),) * 2, has_aux=True)(point)
+    return value, jacobian
+
+
+def placeholder(function, *args):
+    """Zeros shaped like ``function(*args)``'s output, without evaluating it: the carry a loop
+    holds before its first evaluation."""
+    return jax.tree_util.tree_map(lambda a: jnp.zeros(a.shape, a.dtype), jax.eval_shape(function, *args))

@@ -39,7 +39,7 @@ from .._validate import wavelengths as _check_wavelengths
 from ..colorimetry import xyz_weights
 from ..model import WAVELENGTH_RANGE_NM, SkinModel, SkinParams, model_with_options
 from ._linalg import solve_normal
-from ._lockstep import LockstepState
+from ._lockstep import LockstepState, evaluate_with_jacobian, placeholder
 from ._transport_polish import bounded_polish
 from ._variables import (
     CHROMOPHORES,
@@ -384,9 +384,7 @@ class _Solver:
     def _evaluate(self, measurement, u):
         """The model's evaluation at u and its Jacobian with respect to u: the costly part of an
         iteration (``MeasurementModel.evaluation``)."""
-        f = lambda x: (measurement.evaluation(x, self.lam),) * 2  # noqa: E731
-        jacobian, evaluation = jax.jacfwd(f, has_aux=True)(u)
-        return evaluation, jacobian
+        return evaluate_with_jacobian(lambda x: measurement.evaluation(x, self.lam), u)
 
     def _propose(self, measurement, u, evaluation, target):
         """Cost at u and the projected Gauss-Newton step from u (in u), from the model's evaluation
@@ -434,8 +432,7 @@ class _Solver:
             trial = jnp.where(jnp.isnan(current.cost), current.point, current.point + current.carry)
             return best, current, trial, self._evaluate(measurement, trial)
 
-        evaluation = jax.eval_shape(lambda u: self._evaluate(measurement, u), state.point)
-        evaluation = jax.tree_util.tree_map(lambda a: jnp.zeros(a.shape, a.dtype), evaluation)
+        evaluation = placeholder(lambda u: self._evaluate(measurement, u), state.point)
         best, _, trial, evaluation = jax.lax.fori_loop(0, count, body, (state, state, state.point, evaluation))
         return decide(best, trial, evaluation)[0]
 

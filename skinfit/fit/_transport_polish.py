@@ -34,7 +34,7 @@ import numpy as np
 
 from .._batching import map_batches, pad_size
 from ..model import solve_dominant
-from ._lockstep import LockstepState
+from ._lockstep import LockstepState, evaluate_with_jacobian, placeholder
 from ._variables import VARIABLES, stationarity
 
 #: Lock-step iterations between two gatherings of the unconverged spectra.
@@ -123,9 +123,7 @@ class BoundedPolish:
     def _evaluate(self, measurement, x):
         """The model's evaluation (``MeasurementModel.evaluation``) at positions x and its Jacobian
         with respect to x: the costly part of an iteration."""
-        f = lambda z: (measurement.evaluation_of_free(self.physical(z), self.lam),) * 2  # noqa: E731
-        jacobian, evaluation = jax.jacfwd(f, has_aux=True)(x)
-        return evaluation, jacobian
+        return evaluate_with_jacobian(lambda z: measurement.evaluation_of_free(self.physical(z), self.lam), x)
 
     def _linearised(self, measurement, evaluation, target):
         """(residual, d residual / dx) from an evaluation and its Jacobian (``_evaluate``)."""
@@ -215,8 +213,7 @@ class BoundedPolish:
             trial = jnp.where(jnp.isnan(state.cost), state.point, trial)
             return state, trial, predicted, self._evaluate(measurement, trial)
 
-        evaluation = jax.eval_shape(lambda x: self._evaluate(measurement, x), state.point)
-        evaluation = jax.tree_util.tree_map(lambda a: jnp.zeros(a.shape, a.dtype), evaluation)
+        evaluation = placeholder(lambda x: self._evaluate(measurement, x), state.point)
         carry = (state, state.point, jnp.zeros_like(state.cost), evaluation)
         return decide(*jax.lax.fori_loop(0, count, body, carry))
 

@@ -179,6 +179,10 @@ class MeasurementModel(eqx.Module):
         values = {name: from_unbounded(name, u[..., i]) for i, name in enumerate(self.free)}
         return self._with_fixed(values, u)
 
+    def values_of_free(self, theta) -> dict:
+        """``values`` from the physical values ``theta`` (..., n_free) of the free variables."""
+        return self._with_fixed({name: theta[..., i] for i, name in enumerate(self.free)}, theta)
+
     def _with_fixed(self, values, like):
         xp = np if isinstance(like, np.ndarray) else jnp  # NumPy stays NumPy (no eager JAX)
         fixed = xp.asarray(self.fixed_values, like.dtype)
@@ -192,8 +196,7 @@ class MeasurementModel(eqx.Module):
 
     def spectrum_of_free(self, theta, wavelengths_nm):
         """Model spectrum for the physical values ``theta`` (..., n_free) of the free variables."""
-        values = {name: theta[..., i] for i, name in enumerate(self.free)}
-        return self.spectrum_of_values(self._with_fixed(values, theta), wavelengths_nm, theta.dtype)
+        return self.spectrum_of_values(self.values_of_free(theta), wavelengths_nm, theta.dtype)
 
     def spectrum_of_values(self, v: dict, wavelengths_nm, dtype):
         """Model spectrum from a dict of the variables' physical values."""
@@ -251,8 +254,7 @@ class MeasurementModel(eqx.Module):
 
     def evaluation_of_free(self, theta, wavelengths_nm):
         """``evaluation`` at the physical values ``theta`` (..., n_free) of the free variables."""
-        values = {name: theta[..., i] for i, name in enumerate(self.free)}
-        return self.evaluation_of_values(self._with_fixed(values, theta), wavelengths_nm, theta.dtype)
+        return self.evaluation_of_values(self.values_of_free(theta), wavelengths_nm, theta.dtype)
 
     def evaluation_of_values(self, values: dict, wavelengths_nm, dtype):
         """``evaluation`` from a dict of the variables' physical values."""
