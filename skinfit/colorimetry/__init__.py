@@ -14,6 +14,7 @@ from ._cie import (
     spectrum_to_xyz,
     srgb_decode,
     srgb_encode,
+    xyz_to_lab,
     xyz_to_linear_srgb,
     xyz_weights,
 )
@@ -58,6 +59,7 @@ __all__ = [
     "srgb_decode",
     "srgb_encode",
     "warm_starts",
+    "xyz_to_lab",
     "xyz_to_linear_srgb",
     "xyz_weights",
 ]

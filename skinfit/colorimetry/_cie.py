@@ -183,7 +183,30 @@ def linear_srgb_to_lab(linear: ArrayLike) -> Float[Array, "... 3"]:
     rgb = linear[..., 0], linear[..., 1], linear[..., 2]
     # the 3x3 product written out: XLA's CPU backend runs a matmul over a last axis of 3 as a
     # separate, slow dot instead of fusing it
-    x, y, z = (sum(float(matrix[row, col]) * rgb[col] for col in range(3)) for row in range(3))
+    return _lab_of_relative(*(sum(float(matrix[row, col]) * rgb[col] for col in range(3)) for row in range(3)))
+
+
+def xyz_to_lab(
+    xyz: ArrayLike, *, illuminant: str = DEFAULT_ILLUMINANT, observer: str = DEFAULT_OBSERVER
+) -> Float[Array, "... 3"]:
+    """CIE L*a*b* of XYZ colours (..., 3) (white Y = 1, as ``spectrum_to_xyz`` gives them), relative
+    to the white point of ``illuminant`` (its chromaticity under ``observer``, as colour-science's
+    ``XYZ_to_Lab`` takes it)."""
+    xyz = jnp.asarray(xyz)
+    white = _white_xyz(illuminant, observer)
+    return _lab_of_relative(*(xyz[..., i] / float(white[i]) for i in range(3)))
+
+
+@functools.lru_cache(maxsize=16)
+def _white_xyz(illuminant: str, observer: str) -> np.ndarray:
+    colour = _colour()
+    if observer not in colour.CCS_ILLUMINANTS or illuminant not in colour.CCS_ILLUMINANTS[observer]:
+        raise SkinfitInputError(f"no white point for illuminant {illuminant!r} under observer {observer!r} in colour-science")
+    return np.asarray(colour.xy_to_XYZ(colour.CCS_ILLUMINANTS[observer][illuminant]), dtype=float)
+
+
+def _lab_of_relative(x, y, z):
+    """L*a*b* from X/Xn, Y/Yn, Z/Zn."""
     knee = (6.0 / 29.0) ** 3
 
     def f(t):  # cube root only above the knee, so its gradient never sees 0

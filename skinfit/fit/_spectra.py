@@ -36,7 +36,7 @@ import optimistix as optx
 from .._batching import map_batches, pad_size
 from .._validate import SkinfitInputError
 from .._validate import wavelengths as _check_wavelengths
-from ..colorimetry import xyz_weights
+from ..colorimetry import delta_e2000, xyz_to_lab, xyz_weights
 from ..model import WAVELENGTH_RANGE_NM, SkinModel, SkinParams, model_with_options
 from ._linalg import solve_normal
 from ._lockstep import LockstepState, evaluate_with_jacobian, placeholder
@@ -247,13 +247,12 @@ def fit_spectra(
     else:
         u, steps, converged = solver.run(measurement, clean, chunk_size, progress)
 
-    fitted, std_err, stationarity = solver.diagnostics(measurement, u, clean, chunk_size)
+    fitted, std_err, stationarity, delta_e = solver.diagnostics(measurement, u, clean, chunk_size)
     # The optimiser's own test, or first-order optimality in physical coordinates: the latter
     # recognises optima on a bound, where (Gauss-Newton blind to curvature there) steps shrink
     # only linearly and the optimiser's step test can run out of steps.
     converged = converged | (stationarity <= settings.stationarity_tol)
     rms = np.sqrt(np.mean((fitted - clean) ** 2, axis=1))
-    delta_e = _delta_e2000(lam, clean, fitted)
     status = np.where(converged, FitStatus.SUCCESS, FitStatus.MAX_STEPS)
     status = np.where(converged & (rms > max_rms), FitStatus.OUT_OF_MODEL, status)
     status = np.where(bad, FitStatus.BAD_INPUT, status).astype(np.int8)
@@ -351,6 +350,7 @@ class _Solver:
         self.wavelengths = wavelengths
         self.lam = np.asarray(wavelengths)
         self.w = jnp.asarray(weights)
+        self.xyz = xyz_weights(self.lam)  # (3, m) D65, CIE 1931 2 degree
 
     def table(self, measurement: MeasurementModel):
         # The warm-start table is always diffusion's or the tabulated model's: a direct transport
@@ -525,29 +525,36 @@ class _Solver:
     # -- diagnostics ------------------------------------------------------------------------
     @eqx.filter_jit
     def _diagnose(self, measurement, u, target):
-        fitted = measurement.spectrum(u, self.lam)
+        m = self.lam.size
 
-        def std_errors(ui, ti):
+        def one(ui, ti):
             # Jacobian with respect to the physical values of the free variables (not u); the colour
             # term weighs the fit but is no measurement, so the errors come from the spectrum (and
             # the prior, whose rows make them the posterior's)
             theta = jnp.stack([from_unbounded(name, ui[i]) for i, name in enumerate(measurement.free)])
-            residual = lambda th: (measurement.residual_of_free(th, ti, self.lam, self.w),) * 2  # noqa: E731
-            jac, r_full = jax.jacfwd(residual, has_aux=True)(theta)  # rows: spectrum, colour (3, if on), prior
-            m = self.lam.size
+
+            def residual(th):
+                evaluation = measurement.evaluation_of_free(th, self.lam)
+                r = measurement.residual_of_evaluation(evaluation, ti, self.lam, self.w)
+                return r, (r, evaluation[:m])  # the fitted spectrum from the same evaluation
+
+            jac, (r_full, fitted) = jax.jacfwd(residual, has_aux=True)(theta)  # rows: spectrum, colour (3, if on), prior
             jac_m = jnp.concatenate([jac[:m], jac[m + measurement.colour_rows :]])
             dof = jnp.maximum(m - theta.size, 1)
             s2 = jnp.sum(r_full[:m] ** 2) / dof
             evals, evecs = jnp.linalg.eigh(jac_m.T @ jac_m)
             evals = jnp.maximum(evals, 1e-30 * jnp.maximum(evals.max(), 1e-300))
             errors = jnp.sqrt(jnp.sum(evecs**2 / evals, axis=1) * s2)
-            return errors, stationarity(measurement.free, theta, 2.0 * jac.T @ r_full, jnp.sum(r_full**2))
+            return fitted, errors, stationarity(measurement.free, theta, 2.0 * jac.T @ r_full, jnp.sum(r_full**2))
 
-        errors, optimality = jax.vmap(std_errors)(u, target)
-        return fitted, errors, optimality
+        fitted, errors, optimality = jax.vmap(one)(u, target)
+        # CIEDE2000 of measured against fitted colour (D65, 2 degree; negative reflectance counts as 0)
+        xyz = jnp.asarray(self.xyz.T, fitted.dtype)
+        lab = lambda spectra: xyz_to_lab(jnp.maximum(spectra, 0.0) @ xyz)  # noqa: E731
+        return fitted, errors, optimality, delta_e2000(lab(target), lab(fitted))
 
     def diagnostics(self, measurement, u, target, chunk_size, fixed_batch: bool = False):
-        """Fitted spectra, standard errors and the stationarity measure of each fit (in batches of
+        """Fitted spectra, standard errors, the stationarity measure and CIEDE2000 of each fit (in batches of
         ``chunk_size`` exactly with ``fixed_batch``: subsets of varying size then share one program)."""
         diagnose = lambda a, t: self._diagnose(measurement, a, t)  # noqa: E731
         return map_batches(diagnose, (u, target), chunk_size if fixed_batch else pad_size(len(u), chunk_size))
@@ -567,17 +574,6 @@ _POLISH_BATCH = 128
 _HALF_PI = float(np.pi / 2)  # the bounds of the sine coordinates (``to_unbounded`` gives exactly these)
 #: Range fraction from a bound within which Gauss-Newton steps are taken in the range fraction, not u.
 _NEAR_BOUND = 0.01
-
-
-def _delta_e2000(wavelengths, measured, fitted) -> np.ndarray:
-    """CIEDE2000 between measured and fitted spectra (D65, CIE 1931 2 degree), via colour-science."""
-    import colour
-
-
-    weights = xyz_weights(wavelengths)
-    white = colour.xy_to_XYZ(colour.CCS_ILLUMINANTS["CIE 1931 2 Degree Standard Observer"]["D65"])
-    lab = [colour.XYZ_to_Lab(np.clip(s, 0, None) @ weights.T, colour.XYZ_to_xy(white)) for s in (measured, fitted)]
-    return np.asarray(colour.delta_E(lab[0], lab[1], method="CIE 2000"), dtype=float)
 
 
 def _squeeze(fit: SpectralFit) -> SpectralFit:

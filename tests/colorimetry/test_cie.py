@@ -62,6 +62,15 @@ def test_lab_of_linear_srgb_matches_colour_science():
     np.testing.assert_allclose(col.linear_srgb_to_lab(rgb), expected, atol=1e-10)
 
 
+def test_lab_of_xyz_matches_colour_science():
+    xyz = np.random.default_rng(4).random((200, 3)) ** 3  # dark colours too, below the Lab knee
+    for illuminant in ("D65", "A"):
+        white = colour.CCS_ILLUMINANTS["CIE 1931 2 Degree Standard Observer"][illuminant]
+        np.testing.assert_allclose(col.xyz_to_lab(xyz, illuminant=illuminant), colour.XYZ_to_Lab(xyz, white), atol=1e-10)
+    with pytest.raises(skinfit.SkinfitInputError, match="white point"):
+        col.xyz_to_lab(xyz, illuminant="moonlight")
+
+
 def test_delta_e2000_matches_colour_science():
     rng = np.random.default_rng(2)
     lab_1 = rng.uniform([0, -60, -60], [100, 60, 60], (5000, 3))

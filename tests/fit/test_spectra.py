@@ -2,11 +2,13 @@
 
 from pathlib import Path
 
+import colour
 import numpy as np
 import pytest
 
 import skinfit
 from skinfit.fit import FitStatus, fit_spectra
+from skinfit.io import read_nist
 from skinfit.model import captured_reflectance
 
 DJ2006 = skinfit.SkinModel.dj2006()
@@ -46,6 +48,19 @@ def test_bad_spectra_get_a_status_and_no_nan(batch_fit):
     assert list(fit.status[len(true) :]) == [FitStatus.BAD_INPUT, FitStatus.BAD_INPUT]
     for values in (*fit.parameters.values(), *fit.standard_errors.values(), fit.rms_residual, fit.delta_e2000, fit.fitted):
         assert np.all(np.isfinite(values))
+
+
+def test_colour_difference_is_ciede2000_of_measured_and_fitted_colour():
+    # measured NIST forearm spectra: the model leaves a colour difference of a few units
+    nist = read_nist(Path(__file__).parents[2] / "data" / "nist_skin_reflectance_250-1000nm.csv")
+    spectra = np.stack([np.interp(WL, nist.wavelengths_nm, s) for s in nist.average[:6]])
+    fit = fit_spectra(WL, spectra, model=DJ2006, progress=False)
+    weights = skinfit.colorimetry.xyz_weights(WL)
+    white = colour.CCS_ILLUMINANTS["CIE 1931 2 Degree Standard Observer"]["D65"]
+    lab = [colour.XYZ_to_Lab(np.clip(s, 0.0, None) @ weights.T, white) for s in (spectra, fit.fitted)]
+    expected = colour.delta_E(lab[0], lab[1], method="CIE 2000")
+    assert np.all(expected > 0.5)
+    np.testing.assert_allclose(fit.delta_e2000, expected, rtol=1e-9)
 
 
 def test_standard_errors_match_the_scatter_of_noisy_refits():
@@ -176,7 +191,6 @@ def test_transport_fit_converges_on_a_measured_spectrum_far_from_the_model():
     import jax.numpy as jnp
 
     from skinfit.fit import VARIABLES, measurement_model
-    from skinfit.io import read_nist
 
     nist = read_nist(Path(__file__).parents[2] / "data" / "nist_skin_reflectance_250-1000nm.csv")
     spectrum = np.interp(WL_COARSE, nist.wavelengths_nm, nist.average[2])
