@@ -39,13 +39,11 @@ from ._variables import VARIABLES, stationarity
 
 #: Lock-step iterations between two gatherings of the unconverged spectra.
 ROUND_STEPS = 6
-#: Batches of the rounds with fixed batches once few spectra are left: a batch b takes at most 2b
-#: (the smallest such b). Measured in fits on a 2-core CPU (DJ2006, 31 wavelengths, NIST spectra):
-#: a round costs 0.3 ms in a batch of 4, 0.55 ms in one of 16 and 2.2 ms in one of 128 (the
-#: per-kernel cost of the loop's small-matrix algebra dominates small batches), and with the exact
-#: curvature (extended free set) 5.3, 20 and 34 ms (calibrated model: 2.7, 7.5 and 44 ms), so
-#: large batches suit many spectra and small ones the last few.
-STRAGGLER_BATCHES = (16, 4)
+#: Batch of the rounds with fixed batches once few spectra are left (at most twice this many).
+#: Measured in fits on a 2-core CPU (DJ2006, 31 wavelengths): a round costs 0.9 ms in a batch of
+#: 16, 1.9 ms in one of 64 and 2.6 ms in one of 128 (the per-kernel cost of the loop's small-matrix
+#: algebra dominates small batches), so large batches suit many spectra and small ones the last few.
+STRAGGLER_BATCH = 16
 _INITIAL_DAMPING = 1e-3
 _ACTIVE_BAND = 1e-4  # range fraction from a bound within which a variable pushed outward is held on it
 _CONVERGENCE_DAMPING = 1e-12  # keeps the model step's system regular in the convergence test
@@ -244,9 +242,9 @@ class BoundedPolish:
     def run(self, measurement, theta0: np.ndarray, target: np.ndarray, max_steps: int, chunk_size: int, progress,
             fixed_batch: bool = False):
         """Polish physical values ``theta0`` (n, f) against ``target`` (n, m); returns
-        (theta, iterations, converged). ``fixed_batch``: batches of ``chunk_size``, or of one of
-        ``STRAGGLER_BATCHES`` for the few left after the first rounds (at most three compiled
-        programs per problem, whatever the counts; cheap models), else of the size that is left.
+        (theta, iterations, converged). ``fixed_batch``: batches of ``chunk_size``, or of
+        ``STRAGGLER_BATCH`` for the few left after the first rounds (two compiled programs per
+        problem, whatever the counts; cheap models), else of the size that is left.
 
         Between rounds the unconverged are gathered and each carries its whole state (point,
         residual, Jacobian, secant curvature, damping): a round resumes where the last one ended,
@@ -266,7 +264,7 @@ class BoundedPolish:
         def size(count):
             if not fixed_batch:
                 return pad_size(count, chunk_size)
-            return min((b for b in STRAGGLER_BATCHES if count <= 2 * b), default=chunk_size)
+            return STRAGGLER_BATCH if count <= 2 * STRAGGLER_BATCH else chunk_size
 
         def resume(*arrays):
             state, converged = self._round(measurement, jax.tree_util.tree_unflatten(_STATE, arrays[:-1]), arrays[-1])
