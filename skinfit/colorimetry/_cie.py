@@ -187,14 +187,22 @@ def linear_srgb_to_lab(linear: ArrayLike) -> Float[Array, "... 3"]:
 
 
 def xyz_to_lab(
-    xyz: ArrayLike, *, illuminant: str = DEFAULT_ILLUMINANT, observer: str = DEFAULT_OBSERVER
+    xyz: ArrayLike,
+    *,
+    illuminant: str = DEFAULT_ILLUMINANT,
+    observer: str = DEFAULT_OBSERVER,
+    white_xyz: ArrayLike | None = None,
 ) -> Float[Array, "... 3"]:
     """CIE L*a*b* of XYZ colours (..., 3) (white Y = 1, as ``spectrum_to_xyz`` gives them), relative
     to the white point of ``illuminant`` (its chromaticity under ``observer``, as colour-science's
-    ``XYZ_to_Lab`` takes it)."""
+    ``XYZ_to_Lab`` takes it), or to ``white_xyz`` (3,) when given (e.g. the XYZ of the perfect
+    reflector on a sampled wavelength grid)."""
     xyz = jnp.asarray(xyz)
-    white = _white_xyz(illuminant, observer)
-    return _lab_of_relative(*(xyz[..., i] / float(white[i]) for i in range(3)))
+    if white_xyz is None:
+        white = [float(v) for v in _white_xyz(illuminant, observer)]
+    else:
+        white = [white_xyz[..., i] for i in range(3)]
+    return _lab_of_relative(*(xyz[..., i] / white[i] for i in range(3)))
 
 
 @functools.lru_cache(maxsize=16)

@@ -532,13 +532,11 @@ class _Solver:
             # term weighs the fit but is no measurement, so the errors come from the spectrum (and
             # the prior, whose rows make them the posterior's)
             theta = jnp.stack([from_unbounded(name, ui[i]) for i, name in enumerate(measurement.free)])
-
-            def residual(th):
-                evaluation = measurement.evaluation_of_free(th, self.lam)
-                r = measurement.residual_of_evaluation(evaluation, ti, self.lam, self.w)
-                return r, (r, evaluation[:m])  # the fitted spectrum from the same evaluation
-
-            jac, (r_full, fitted) = jax.jacfwd(residual, has_aux=True)(theta)  # rows: spectrum, colour (3, if on), prior
+            # one evaluation gives the fitted spectrum (its first m rows) and, through the cheap rest,
+            # the residual and its Jacobian (rows: spectrum, colour (3, if on), prior)
+            evaluation = evaluate_with_jacobian(lambda th: measurement.evaluation_of_free(th, self.lam), theta)
+            r_full, jac = measurement.linearised_residual(*evaluation, ti, self.lam, self.w)
+            fitted = evaluation[0][:m]
             jac_m = jnp.concatenate([jac[:m], jac[m + measurement.colour_rows :]])
             dof = jnp.maximum(m - theta.size, 1)
             s2 = jnp.sum(r_full[:m] ** 2) / dof

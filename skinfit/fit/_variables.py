@@ -38,7 +38,7 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Float
 
-from ..colorimetry import xyz_weights
+from ..colorimetry import xyz_to_lab, xyz_weights
 from ..model import (
     SURFACE_ROUGHNESS,
     Diffusion,
@@ -268,7 +268,8 @@ class MeasurementModel(eqx.Module):
         parts = [weights * (spectrum - target)]
         if self.colour_rows:
             xyz = jnp.asarray(_xyz_weights(tuple(np.asarray(wavelengths_nm, dtype=float).tolist())), spectrum.dtype)
-            parts.append(self.colour_weight * (_lab(spectrum @ xyz.T, xyz) - _lab(target @ xyz.T, xyz)))
+            lab = lambda spectra: xyz_to_lab(spectra @ xyz.T, white_xyz=xyz.sum(axis=-1))  # noqa: E731 - the grid's own white
+            parts.append(self.colour_weight * (lab(spectrum) - lab(target)))
         parts.append(evaluation[..., m:])
         return jnp.concatenate(parts, axis=-1)
 
@@ -333,15 +334,6 @@ def _slit(wavelengths: tuple, bandwidth_nm: float | None):
 def _xyz_weights(wavelengths: tuple) -> np.ndarray:
     """CIE 1931 XYZ weights under D65 for the grid, normalised so the perfect white has Y = 1."""
     return xyz_weights(np.asarray(wavelengths))
-
-
-def _lab(xyz, weights):
-    """CIELAB of XYZ (..., 3) relative to the white of ``weights`` (3, m); cube root floored at its knee."""
-    white = weights.sum(axis=-1)
-    t = xyz / white
-    knee = 216.0 / 24389.0
-    f = jnp.where(t > knee, jnp.cbrt(jnp.maximum(t, knee)), (24389.0 / 27.0 * t + 16.0) / 116.0)
-    return jnp.stack([116.0 * f[..., 1] - 16.0, 500.0 * (f[..., 0] - f[..., 1]), 200.0 * (f[..., 1] - f[..., 2])], axis=-1)
 
 
 def _port_quadrature():
