@@ -170,14 +170,23 @@ def _stencil(coefficients, x, lower, step):
     return block, position
 
 
+def _contract(block, weights):
+    """sum_k block[..., k] weights[:, k]: the last axis of a stencil block (m, ..., 4) against
+    per-point weights (m, 4). Written as four fused multiply-adds: on CPU, XLA's batched dot for
+    these 4-long contractions cost 2.5 times as much (measured: the spline of 512 x 31 points, 2-core
+    CPU, 2.5 us per 31 points through einsum, 1.0 unrolled)."""
+    shape = (-1,) + (1,) * (block.ndim - 2)
+    return sum(block[..., k] * weights[:, k].reshape(shape) for k in range(4))
+
+
 @functools.partial(jax.custom_jvp, nondiff_argnums=(4, 5))
 def _spline(coefficients, x1, x2, x3, lower, step):
     """The spline at the points (x1, x2, x3) (each (m,), inside the grid): the stencil contracted
     with the weights axis by axis."""
     block, u = _stencil(coefficients, (x1, x2, x3), lower, step)
-    block = jnp.einsum("mabc,mc->mab", block, _bspline_weights(u[2]))
-    block = jnp.einsum("mab,mb->ma", block, _bspline_weights(u[1]))
-    return jnp.einsum("ma,ma->m", block, _bspline_weights(u[0]))
+    block = _contract(block, _bspline_weights(u[2]))
+    block = _contract(block, _bspline_weights(u[1]))
+    return _contract(block, _bspline_weights(u[0]))
 
 
 @functools.partial(_spline.defjvp, symbolic_zeros=True)
@@ -190,13 +199,12 @@ def _spline_jvp(lower, step, primals, tangents):
     block, u = _stencil(coefficients, x, lower, step)
     weights = [_bspline_weights(ui) for ui in u]
     slopes = [_bspline_slopes(ui) / h for ui, h in zip(u, step)]  # d weights / dx
-    c = jnp.einsum("mabc,mc->mab", block, weights[2])
-    dc = jnp.einsum("mabc,mc->mab", block, slopes[2])
-    b = jnp.einsum("mab,mb->ma", c, weights[1])
-    value = jnp.einsum("ma,ma->m", b, weights[0])
-    gradient = (jnp.einsum("ma,ma->m", b, slopes[0]),
-                jnp.einsum("ma,ma->m", jnp.einsum("mab,mb->ma", c, slopes[1]), weights[0]),
-                jnp.einsum("ma,ma->m", jnp.einsum("mab,mb->ma", dc, weights[1]), weights[0]))
+    c = _contract(block, weights[2])
+    dc = _contract(block, slopes[2])
+    b = _contract(c, weights[1])
+    value = _contract(b, weights[0])
+    gradient = (_contract(b, slopes[0]), _contract(_contract(c, slopes[1]), weights[0]),
+                _contract(_contract(dc, weights[1]), weights[0]))
     tangent = jnp.zeros_like(value)
     for g, t in zip(gradient, tangents[1:]):
         if not isinstance(t, SymbolicZero):
