@@ -23,14 +23,7 @@ def first_and_median(function, *args, repeats: int = 3):
     """(result, first call's seconds, median seconds of ``repeats`` calls after it): what a user waits
     the first time (compilation included), and what the compiled call costs. For functions that
     return host data (NumPy results), so no device synchronisation is needed."""
-    start = time.perf_counter()
-    result = function(*args)
-    first = time.perf_counter() - start
-    times = []
-    for _ in range(repeats):
-        start = time.perf_counter()
-        result = function(*args)
-        times.append(time.perf_counter() - start)
+    result, first, times = first_and_repeated(lambda: function(*args), repeats=repeats)
     return result, first, float(np.median(times))
 
 
