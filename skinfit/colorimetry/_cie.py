@@ -15,12 +15,11 @@ illuminant.
 
 from __future__ import annotations
 
-import functools
-
 import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, ArrayLike, Float
 
+from .._caching import eager_cache
 from .._validate import SkinfitInputError, is_concrete
 
 DEFAULT_ILLUMINANT = "D65"
@@ -51,7 +50,7 @@ def xyz_weights(
     return _xyz_weights(_grid(wavelengths_nm), illuminant, observer)
 
 
-@functools.lru_cache(maxsize=64)
+@eager_cache(maxsize=64)
 def _xyz_weights(wavelengths: tuple[float, ...], illuminant: str, observer: str) -> np.ndarray:
     colour = _colour()
     if observer not in colour.MSDS_CMFS:
@@ -72,7 +71,7 @@ def _xyz_weights(wavelengths: tuple[float, ...], illuminant: str, observer: str)
     return weights
 
 
-@functools.lru_cache(maxsize=64)
+@eager_cache(maxsize=64)
 def _xyz_to_linear_srgb_matrix(illuminant: str, observer: str) -> np.ndarray:
     colour = _colour()
     srgb = colour.RGB_COLOURSPACES["sRGB"]
@@ -165,7 +164,7 @@ def _weigh(reflectance, weights: np.ndarray):
     return reflectance @ jnp.asarray(weights.T, reflectance.dtype)
 
 
-@functools.lru_cache(maxsize=1)
+@eager_cache(maxsize=1)
 def _linear_srgb_to_relative_xyz_matrix() -> np.ndarray:
     """Linear sRGB -> XYZ / XYZ_white, the white being the sRGB white point (D65 xy 0.3127, 0.3290)
     as colour-science takes it for L*a*b*."""
@@ -205,7 +204,7 @@ def xyz_to_lab(
     return _lab_of_relative(*(xyz[..., i] / white[i] for i in range(3)))
 
 
-@functools.lru_cache(maxsize=16)
+@eager_cache(maxsize=16)
 def _white_xyz(illuminant: str, observer: str) -> np.ndarray:
     colour = _colour()
     if observer not in colour.CCS_ILLUMINANTS or illuminant not in colour.CCS_ILLUMINANTS[observer]:

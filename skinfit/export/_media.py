@@ -52,6 +52,7 @@ import jax.numpy as jnp
 import numpy as np
 import scipy.interpolate
 
+from .._caching import eager_cache, eager_cached_property
 from .._compilation_cache import cache_root
 from .._validate import SkinfitInputError
 from ..model import (
@@ -138,16 +139,16 @@ class MediumTable:
     def max_reflectance(self) -> float:
         return 1.0 - self.conventions.specular
 
-    @functools.cached_property
+    @eager_cached_property
     def _albedo_of_reflectance(self):
         r = self.reflectance / self.max_reflectance
         return scipy.interpolate.CubicSpline(np.log(r / (1.0 - r)), self.albedo_logit)
 
-    @functools.cached_property
+    @eager_cached_property
     def _median(self):
         return scipy.interpolate.PchipInterpolator(np.log(self.median_absorption), np.log(self.median_radius))
 
-    @functools.cached_property
+    @eager_cached_property
     def reflectance_range(self) -> tuple[float, float]:
         """The diffuse reflectances the table inverts: the colour curve's lowest, and the one at
         the Monte Carlo's most weakly absorbing node (where the median radius ends)."""
@@ -279,7 +280,7 @@ def _cache_dir() -> Path:
     return cache_root() / "media"
 
 
-@functools.cache
+@eager_cache()
 def medium_table(conventions: RendererConventions = DEFAULT_CONVENTIONS, *, progress: bool = True) -> MediumTable:
     """The tables of ``conventions``: shipped (n 1.4, g 0), cached (``$SKINFIT_CACHE_DIR/media`` or
     ~/.cache/skinfit/media) or built now and cached."""

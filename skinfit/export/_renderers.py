@@ -33,7 +33,6 @@ colour weights as ``colorimetry``.
 from __future__ import annotations
 
 import dataclasses
-import functools
 import importlib.resources
 import json
 from pathlib import Path
@@ -42,6 +41,7 @@ import numpy as np
 import scipy.interpolate
 import scipy.optimize
 
+from .._caching import eager_cache
 from .._validate import SkinfitInputError
 from .._version import __version__
 from ..colorimetry import DEFAULT_ILLUMINANT, linear_srgb_weights, render_maps
@@ -326,7 +326,7 @@ def mitsuba_export(result: RendererProfiles, *, spectral: bool = False, mm_per_s
 BLENDER_METHODS = ("RANDOM_WALK", "RANDOM_WALK_SKIN")
 
 
-@functools.cache
+@eager_cache()
 def blender_drift(method: str = "RANDOM_WALK") -> dict:
     """The measured Cycles curve of ``method``: rendered diffuse albedo against base colour, with
     the Blender version and scene it was measured in (``benchmarks/measure_blender_drift.py``)."""

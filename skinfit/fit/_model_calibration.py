@@ -35,6 +35,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from .._batching import map_batches, pad_size
+from .._caching import BoundedCache
 from .._validate import SkinfitInputError
 from ..model import PopulationPrior, SkinModel, cache_key
 from ._spectra import (
@@ -408,17 +409,12 @@ def _progress(enabled, total):
     return tqdm(total=total, desc="calibrating constants", unit="step")
 
 
-_KERNELS: dict = {}
+_KERNELS = BoundedCache(4)
 
 
 def _kernels(measurement, constants, wavelengths) -> "_Kernels":
     """One set of compiled kernels per measurement (values included: they are compiled in) and grid."""
-    key = (cache_key(measurement), constants, wavelengths)
-    if key not in _KERNELS:
-        _KERNELS[key] = _Kernels(measurement, constants, wavelengths)
-        while len(_KERNELS) > 4:
-            _KERNELS.pop(next(iter(_KERNELS)))
-    return _KERNELS[key]
+    return _KERNELS.get((cache_key(measurement), constants, wavelengths), lambda: _Kernels(measurement, constants, wavelengths))
 
 
 class _Kernels:

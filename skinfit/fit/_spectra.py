@@ -24,7 +24,6 @@ from __future__ import annotations
 
 import dataclasses
 import enum
-import functools
 from collections.abc import Mapping, Sequence
 
 import equinox as eqx
@@ -34,6 +33,7 @@ import numpy as np
 import optimistix as optx
 
 from .._batching import map_batches, pad_size
+from .._caching import eager_cache
 from .._validate import SkinfitInputError
 from .._validate import wavelengths as _check_wavelengths
 from ..colorimetry import delta_e2000, xyz_to_lab, xyz_weights
@@ -558,7 +558,7 @@ class _Solver:
         return map_batches(diagnose, (u, target), chunk_size if fixed_batch else pad_size(len(u), chunk_size))
 
 
-@functools.lru_cache(maxsize=16)
+@eager_cache(maxsize=16)
 def _solver(static_key, wavelengths: tuple, weights: tuple, settings: SolverSettings) -> _Solver:
     """One solver per measurement structure and grid: later calls, whatever their model's values,
     reuse its compilations (``static_key`` only keys the cache)."""

@@ -25,14 +25,13 @@ convergence).
 
 from __future__ import annotations
 
-import functools
-
 import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
 
 from .._batching import map_batches, pad_size
+from .._caching import eager_cache
 from ..model import solve_dominant
 from ._lockstep import LockstepState, evaluate_with_jacobian, placeholder
 from ._variables import VARIABLES, stationarity
@@ -284,7 +283,7 @@ class BoundedPolish:
         return self.physical(np.asarray(point)), steps, done
 
 
-@functools.lru_cache(maxsize=16)
+@eager_cache(maxsize=16)
 def bounded_polish(free: tuple, wavelengths: tuple, weights: tuple, step_tol: float, stationarity_tol: float,
                    exact_curvature: bool = False, reduction_tol: float = 1e-10, logarithmic: bool = True) -> BoundedPolish:
     """One ``BoundedPolish`` per problem: its compiled rounds serve every later call (the

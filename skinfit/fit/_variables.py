@@ -30,7 +30,6 @@ fit compiles once per free set and instrument, never per value.
 from __future__ import annotations
 
 import dataclasses
-import functools
 
 import equinox as eqx
 import jax
@@ -38,6 +37,7 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Float
 
+from .._caching import eager_cache
 from ..colorimetry import xyz_to_lab, xyz_weights
 from ..model import (
     SURFACE_ROUGHNESS,
@@ -308,7 +308,7 @@ def stationarity(free, theta, gradient, cost):
     return jnp.max(jnp.abs(projected) * span) / jnp.maximum(cost, 1e-300)
 
 
-@functools.lru_cache(maxsize=32)
+@eager_cache(maxsize=32)
 def _slit(wavelengths: tuple, bandwidth_nm: float | None):
     """Wavelengths to evaluate and the (m, k) matrix that applies a triangular slit of FWHM
     ``bandwidth_nm`` centred on each output wavelength (None: the grid itself, no matrix).
@@ -330,7 +330,7 @@ def _slit(wavelengths: tuple, bandwidth_nm: float | None):
     return nodes, matrix
 
 
-@functools.lru_cache(maxsize=32)
+@eager_cache(maxsize=32)
 def _xyz_weights(wavelengths: tuple) -> np.ndarray:
     """CIE 1931 XYZ weights under D65 for the grid, normalised so the perfect white has Y = 1."""
     return xyz_weights(np.asarray(wavelengths))

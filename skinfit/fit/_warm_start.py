@@ -21,6 +21,7 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Float
 
+from .._caching import BoundedCache
 from ..model import cache_key
 from ._variables import (
     CHROMOPHORES,
@@ -106,16 +107,10 @@ def build_fit_table(
     model with other constants builds its own without recompiling.
     """
     key = (cache_key(model), wavelengths, weights, tuple(shape), tuple(groups))
-    table = _TABLES.get(key)
-    if table is None:
-        table = _build_fit_table(model, wavelengths, weights, tuple(shape), tuple(groups))
-        _TABLES[key] = table
-        while len(_TABLES) > 8:
-            _TABLES.pop(next(iter(_TABLES)))
-    return table
+    return _TABLES.get(key, lambda: _build_fit_table(model, wavelengths, weights, tuple(shape), tuple(groups)))
 
 
-_TABLES: dict = {}
+_TABLES = BoundedCache(8)
 
 
 def _start_value(model: MeasurementModel, name: str) -> float:

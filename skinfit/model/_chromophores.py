@@ -19,12 +19,13 @@ Every function takes wavelengths of any shape and returns the same shape.
 
 from __future__ import annotations
 
-import functools
 import importlib.resources
 
 import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, ArrayLike, Float
+
+from .._caching import eager_cache
 
 #: Wavelength range (nm) covered by the haemoglobin table, and so by the skin model.
 WAVELENGTH_RANGE_NM = (250.0, 1000.0)
@@ -40,7 +41,7 @@ _EXTINCTION_TO_MM = (
 )
 
 
-@functools.cache
+@eager_cache()
 def haemoglobin_table() -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Prahl's table as ``(wavelength_nm, epsilon_HbO2, epsilon_Hb)``, in cm^-1 per mol/L."""
     text = (
@@ -54,7 +55,7 @@ def haemoglobin_table() -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     return data[:, 0], data[:, 1], data[:, 2]
 
 
-@functools.cache
+@eager_cache()
 def carotene_table() -> tuple[np.ndarray, np.ndarray]:
     """Prahl's beta-carotene table as ``(wavelength_nm, epsilon)``, epsilon in cm^-1 per mol/L (decadic)."""
     text = importlib.resources.files("skinfit.spectra").joinpath("beta_carotene.csv").read_text(encoding="utf-8")

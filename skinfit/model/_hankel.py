@@ -13,11 +13,11 @@ so it is built once in NumPy (scipy's J0) and cached; radii must therefore be co
 from __future__ import annotations
 
 import dataclasses
-import functools
 
 import numpy as np
 import scipy.special
 
+from .._caching import eager_cache
 from .._validate import SkinfitInputError, is_concrete
 
 
@@ -78,7 +78,7 @@ def inverse_kernel(radii_mm: np.ndarray, quadrature: HankelQuadrature) -> tuple[
     return _inverse_kernel(radii_mm.tobytes(), quadrature)
 
 
-@functools.lru_cache(maxsize=32)
+@eager_cache(maxsize=32)
 def _inverse_kernel(radii_bytes: bytes, quadrature: HankelQuadrature):
     radii = np.frombuffer(radii_bytes, dtype=float)
     q, w = quadrature.nodes(float(radii.max()))
@@ -95,7 +95,7 @@ def energy_kernel(radius_mm: float, quadrature: HankelQuadrature) -> tuple[np.nd
     return _energy_kernel(float(radius_mm), quadrature)
 
 
-@functools.lru_cache(maxsize=32)
+@eager_cache(maxsize=32)
 def _energy_kernel(radius: float, quadrature: HankelQuadrature):
     q, w = quadrature.nodes(radius)
     weights = w * radius * scipy.special.j1(q * radius)

@@ -24,7 +24,6 @@ adding-doubling, tabulated or direct).
 
 from __future__ import annotations
 
-import functools
 import hashlib
 import importlib.resources
 import json
@@ -36,6 +35,7 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, ArrayLike, Float
 
+from .._caching import eager_cache
 from .._validate import SkinfitInputError, as_float_array, check_range, is_concrete
 from . import _chromophores as chrom
 from ._layers import BLOOD_OXYGENATION, EPIDERMIS_THICKNESS_MM, SKIN_IOR, Layer
@@ -355,7 +355,7 @@ _FIELD_NAMES = (*_ARRAY_FIELDS, "epidermis_scattering", "dermis_scattering", "me
 CALIBRATED_MODEL_FILE = "calibrated_model.json"
 
 
-@functools.cache
+@eager_cache()
 def _calibrated() -> SkinModel:
     text = importlib.resources.files("skinfit.spectra").joinpath(CALIBRATED_MODEL_FILE).read_text(encoding="utf-8")
     return SkinModel.from_dict(json.loads(text))

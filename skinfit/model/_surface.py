@@ -29,14 +29,13 @@ horizon, which leaves a kink that slows any higher-order rule down to the midpoi
 
 from __future__ import annotations
 
-import functools
-
 import equinox as eqx
 import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, ArrayLike, Float
 
 from .. import _validate
+from .._caching import eager_cache
 from ._fresnel import fresnel_reflectance, normal_fresnel_reflectance
 from ._params import SkinParams
 from ._reflectance import (
@@ -80,7 +79,7 @@ def _unit_lobe(wi, wo, roughness, ior):
     return jnp.where(above, lobe, 0.0)
 
 
-@functools.lru_cache(maxsize=4)
+@eager_cache(maxsize=4)
 def _half_vector_nodes(n_x: int, n_phi: int):
     """Midpoints in x = 1 - exp(-u) (the Beckmann measure is uniform in x) and in phi over (0, pi)."""
     x = (np.arange(n_x) + 0.5) / n_x

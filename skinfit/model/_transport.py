@@ -34,6 +34,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from .._caching import eager_cache
 from .._validate import SkinfitInputError, is_concrete
 from ._fresnel import fresnel_reflectance
 
@@ -43,7 +44,7 @@ _SEMI_INFINITE_START = 2.0**-10
 _SEMI_INFINITE_DOUBLINGS = 36
 
 
-@functools.lru_cache(maxsize=16)
+@eager_cache(maxsize=16)
 def _quadrature(streams: int, critical_cosine: float = 0.0):
     """Nodes on (0, 1) per hemisphere, the beam direction appended (weight 0), Legendre values.
 

@@ -66,6 +66,7 @@ import jax.numpy as jnp
 import numpy as np
 from jax.custom_derivatives import SymbolicZero
 
+from .._caching import eager_cache
 from .._compilation_cache import cache_root
 from ._transport import STREAMS, stack_reflectance_transport
 
@@ -382,7 +383,7 @@ def _matches(table: TransportTable, anisotropy, ior, streams, nodes) -> bool:
     return (table.anisotropy, table.ior, table.streams, table.nodes) == (anisotropy, ior, streams, tuple(nodes)) and same_box
 
 
-@functools.cache
+@eager_cache()
 def transport_table(anisotropy: float = 0.8, ior: float = 1.4, *, streams: int = STREAMS, nodes: tuple | None = None,
                     progress: bool = True) -> TransportTable:
     """The table for (g, n, streams): the shipped one for (0.8, 1.4, 16) from the package data

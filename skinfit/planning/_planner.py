@@ -26,13 +26,13 @@ be computed; ``plan(...).evaluate(params)`` runs it.
 from __future__ import annotations
 
 import dataclasses
-import functools
 
 import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
 
+from .._caching import eager_cache
 from .._validate import SkinfitInputError, check_range
 from ..colorimetry import (
     DEFAULT_ILLUMINANT,
@@ -251,7 +251,7 @@ def evaluate(plan: Plan, params: SkinParams, *, model: SkinModel | None = None, 
                   outputs.get("derivatives"))
 
 
-@functools.lru_cache(maxsize=32)
+@eager_cache(maxsize=32)
 def _program(plan: Plan):
     """The plan as one jitted function of (params, model, scattering_scale) -> dict of outputs."""
     request = plan.request
@@ -308,26 +308,32 @@ def rgb_wavelengths(illuminant: str = DEFAULT_ILLUMINANT, tolerance: float = 0.1
     return _rgb_wavelengths(str(illuminant), float(tolerance))
 
 
-@functools.lru_cache(maxsize=16)
+@eager_cache(maxsize=16)
 def _rgb_wavelengths(illuminant, tolerance):
     fine = np.arange(360.0, 831.0, 1.0)
     spectra = np.asarray(diffuse_reflectance(probe_params(), jnp.asarray(fine)))
 
-    def lab(grid):
-        weights = linear_srgb_weights(grid, illuminant)
-        return linear_srgb_to_lab(jnp.asarray(spectra[:, np.searchsorted(fine, grid)] @ weights.T))
+    def colours(grid):  # in NumPy: every candidate's colours then have one shape, (n_probe, 3)
+        return spectra[:, np.searchsorted(fine, grid)] @ np.asarray(linear_srgb_weights(grid, illuminant)).T
 
-    reference = lab(fine)
+    reference = colours(fine)
     candidates = sorted(
         (np.arange(start, end + 0.5 * step, step) for start in RGB_STARTS_NM for end in RGB_ENDS_NM for step in RGB_STEPS_NM
          if (end - start) % step == 0),
         key=len,
     )
     for grid in candidates:
-        error = float(jnp.max(delta_e2000(reference, lab(grid))))
+        error = float(_worst_colour_error(reference, colours(grid)))
         if error <= tolerance:
             return tuple(grid.tolist()), error
     return tuple(fine.tolist()), 0.0
+
+
+@jax.jit
+def _worst_colour_error(reference_linear, linear):
+    """Largest CIEDE2000 between two sets of linear sRGB colours (compiled once: the candidates'
+    colours share a shape, and op-by-op evaluation of each would cost ~5 ms per candidate)."""
+    return jnp.max(delta_e2000(linear_srgb_to_lab(reference_linear), linear_srgb_to_lab(linear)))
 
 
 def probe_params() -> SkinParams:
