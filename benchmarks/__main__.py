@@ -96,6 +96,13 @@ def main(argv=None) -> int:
         report["machine"], report["date"] = machine, date
         (out / "stress.json").write_text(json.dumps(report, indent=2))
         print(f"  violations {report['violations']}, outside validity {report['outside_validity']}")
+        start = time.perf_counter()
+        default = stress.sweep(args.stress_points, model=stress.MODELS["default"](), solvers=False)
+        default["seconds"] = time.perf_counter() - start
+        default["machine"], default["date"] = machine, date
+        (out / "stress_default.json").write_text(json.dumps(default, indent=2))
+        print(f"  default model: violations {default['violations']}, outside validity {default['outside_validity']}")
+        report["violations"] += default["violations"]
     text = summary(points, report, machine, date)
     (out / "summary.md").write_text(text)
     (out / "run.json").write_text(json.dumps({"date": date, "machine": machine, "repeats": args.repeats}, indent=2))

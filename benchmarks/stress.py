@@ -1,6 +1,10 @@
 """Numerical stress sweep: the forward model, its derivatives and the solvers over extreme inputs.
 
-Run: python -m benchmarks.stress [--points 1000000] [--out benchmarks/results]
+Run: python -m benchmarks.stress [--points 1000000] [--model dj2006|default] [--out benchmarks/results]
+
+Two models: DJ2006 on the multipole (``stress.json``) and the package default, the calibrated
+constants on tabulated exact transport (``stress_default.json``). Exact transport has no validity
+domain to leave: its values must be monotone at every point.
 
 Every point is (parameters, options, wavelength) drawn over the whole valid box and a little of
 its edges: melanin, blend, haemoglobin and blood oxygenation in [0, 1] (10 % of draws exactly 0 or
@@ -42,6 +46,7 @@ import platform
 import time
 from pathlib import Path
 
+import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -55,8 +60,11 @@ from skinfit.model import (
     stack_transfer,
 )
 
-#: The sweep stresses the DJ2006 diffusion model (its validity domain is the multipole's).
-MODEL = skinfit.SkinModel.dj2006()
+#: The models the sweep stresses: DJ2006 on the multipole, whose validity domain is the multipole's,
+#: and the package default (the calibrated constants on tabulated exact transport, valid at any
+#: optical thickness: its reflectance must be monotone everywhere).
+MODELS = {"dj2006": skinfit.SkinModel.dj2006, "default": skinfit.SkinModel.default}
+MODEL = MODELS["dj2006"]()
 
 FIELDS = ("melanin", "melanin_blend", "haemoglobin", "blood_oxygenation", "epidermis_thickness_mm")
 PROFILE_FLOOR = 1e-9
@@ -83,36 +91,42 @@ def draw_wavelengths(rng: np.random.Generator, count: int = WAVELENGTHS_PER_CHUN
     return np.sort(np.concatenate([[250.0, 1000.0], rng.uniform(250.0, 1000.0, count - 2)]))
 
 
-def epidermis_optical_thickness(fields: dict, lam: np.ndarray) -> np.ndarray:
+def epidermis_optical_thickness(fields: dict, lam: np.ndarray, model=MODEL) -> np.ndarray:
     """sigma_t' d of the epidermis, (n, n_wavelengths): the diffusion model needs it >= 1."""
-    from skinfit import model as ch
+    fields = {k: np.asarray(v, dtype=float) for k, v in fields.items()}
+    epidermis, _ = _model(fields, model).layers(_params(fields), np.asarray(lam, dtype=float))
+    return np.asarray(epidermis.thickness * (epidermis.absorption + epidermis.reduced_scattering))
 
-    lam = np.asarray(lam, dtype=float)
-    blend = np.asarray(fields["melanin_blend"], dtype=float)[:, None]
-    c_m = np.asarray(fields["melanin"], dtype=float)[:, None]
-    melanin = blend * np.asarray(ch.eumelanin_absorption(lam)) + (1 - blend) * np.asarray(ch.pheomelanin_absorption(lam))
-    absorption = c_m * melanin + (1 - c_m) * np.asarray(ch.baseline_absorption(lam))
-    extinction = absorption + np.asarray(ch.epidermis_reduced_scattering(lam))
-    return np.asarray(fields["epidermis_thickness_mm"], dtype=float)[:, None] * extinction
+
+def validity(fields: dict, lam: np.ndarray, model=MODEL) -> np.ndarray:
+    """Where the physical properties must hold (n, n_wavelengths): everywhere for exact transport,
+    where the epidermis is at least a transport mean free path thick for diffusion."""
+    if isinstance(model.method, skinfit.Transport):
+        return np.ones((len(fields["melanin"]), len(lam)), bool)
+    return epidermis_optical_thickness(fields, lam, model) >= 1.0
 
 
 def _split(failed: np.ndarray, valid: np.ndarray, name: str) -> dict[str, int]:
     return {name: int(np.sum(failed & valid)), f"outside_validity_{name}": int(np.sum(failed & ~valid))}
 
 
-def _model(fields):
-    return MODEL.replace(blood_oxygenation=fields["blood_oxygenation"], epidermis_thickness_mm=fields["epidermis_thickness_mm"])
+def _model(fields, model):
+    return model.replace(blood_oxygenation=fields["blood_oxygenation"], epidermis_thickness_mm=fields["epidermis_thickness_mm"])
 
 
-def _reflectance(fields, lam):
-    params = skinfit.SkinParams(fields["melanin"], fields["melanin_blend"], fields["haemoglobin"])
-    return params, skin_reflectance(params, lam, _model(fields))
+def _params(fields):
+    return skinfit.SkinParams(fields["melanin"], fields["melanin_blend"], fields["haemoglobin"])
 
 
-@jax.jit
-def values_and_derivatives(fields, lam):
+def _reflectance(fields, lam, model):
+    params = _params(fields)
+    return params, skin_reflectance(params, lam, _model(fields, model))
+
+
+@eqx.filter_jit
+def values_and_derivatives(fields, lam, model=MODEL):
     """Reflectance (n, n_wavelengths) and its derivative along each field (dict of the same shape)."""
-    f = lambda x: _reflectance(x, lam)[1]  # noqa: E731
+    f = lambda x: _reflectance(x, lam, model)[1]  # noqa: E731
     value = f(fields)
     derivatives = {}
     for name in FIELDS:
@@ -121,27 +135,26 @@ def values_and_derivatives(fields, lam):
     return value, derivatives
 
 
-@jax.jit
-def frequency_response(fields, lam, q):
-    """R12(q) of shape (n, n_wavelengths, n_q)."""
-    params, _ = _reflectance(fields, lam)
-    layers = _model(fields).layers(params, lam)
+@eqx.filter_jit
+def frequency_response(fields, lam, q, model=MODEL):
+    """R12(q) of shape (n, n_wavelengths, n_q) (the multipole's, for either model's layers)."""
+    layers = _model(fields, model).layers(_params(fields), lam)
     expanded = [jax.tree_util.tree_map(lambda a: jnp.asarray(a)[..., None], layer) for layer in layers]
     return stack_transfer(expanded, q)
 
 
-def profiles(fields, lam, radii, quadrature=HankelQuadrature()):
-    params, _ = _reflectance(fields, lam)
+def profiles(fields, lam, radii, quadrature=HankelQuadrature(), model=MODEL):
     q, kernel = inverse_kernel(radii, quadrature)
-    return skin_profile(params, lam, radii, q, kernel, _model(fields), False)
+    return skin_profile(_params(fields), lam, radii, q, kernel, _model(fields, model), False)
 
 
-def check_chunk(fields: dict, lam: np.ndarray, dtype) -> dict[str, int]:
+def check_chunk(fields: dict, lam: np.ndarray, dtype, model=MODEL) -> dict[str, int]:
     """Violation counts of values, derivatives, monotonicity and frequency response for one chunk."""
-    valid = epidermis_optical_thickness(fields, lam) >= 1.0
+    valid = validity(fields, lam, model)
+    diffusion_valid = epidermis_optical_thickness(fields, lam, model) >= 1.0  # the frequency response is the multipole's
     fields = {k: jnp.asarray(v, dtype) for k, v in fields.items()}
     lam = jnp.asarray(lam, dtype)
-    value, derivatives = values_and_derivatives(fields, lam)
+    value, derivatives = values_and_derivatives(fields, lam, model)
     value = np.asarray(value)
     # Derivatives are trusted to the rounding of the value they change (eps * R / delta), so a
     # sign is a violation only beyond that.
@@ -156,12 +169,12 @@ def check_chunk(fields: dict, lam: np.ndarray, dtype) -> dict[str, int]:
         **_split(np.asarray(derivatives["haemoglobin"]) > noise, valid, "brighter_with_haemoglobin"),
     }
     few = {k: v[:512] for k, v in fields.items()}
-    response = np.asarray(frequency_response(few, lam[:4], jnp.asarray(FREQUENCIES_PER_MM, dtype)))
+    response = np.asarray(frequency_response(few, lam[:4], jnp.asarray(FREQUENCIES_PER_MM, dtype), model))
     at_zero = response[..., :1]
     counts["frequency_points"] = int(response.size)
     counts["frequency_nan_inf"] = int(np.sum(~np.isfinite(response)))
     above = np.abs(response) > at_zero * (1 + 1e-6) + np.finfo(response.dtype).eps
-    counts.update(_split(above, valid[:512, :4, None], "frequency_above_dc"))
+    counts.update(_split(above, diffusion_valid[:512, :4, None], "frequency_above_dc"))
     return counts
 
 
@@ -169,7 +182,7 @@ def check_chunk(fields: dict, lam: np.ndarray, dtype) -> dict[str, int]:
 FINE_QUADRATURE = HankelQuadrature(q_max=1000.0, nodes_per_panel=32, phase_per_panel=10.0)
 
 
-def check_profiles(fields: dict, lam: np.ndarray, radii: np.ndarray, dtype) -> dict:
+def check_profiles(fields: dict, lam: np.ndarray, radii: np.ndarray, dtype, model=MODEL) -> dict:
     """Profiles: NaN/Inf, and negative values beyond ``PROFILE_FLOOR`` of the peak.
 
     A negative profile inside the validity domain is checked again in float64 with
@@ -178,40 +191,42 @@ def check_profiles(fields: dict, lam: np.ndarray, radii: np.ndarray, dtype) -> d
     reported as ``profile_negative_model``; if it does not, the quadrature is at fault and it counts
     as a violation (``profile_negative``).
     """
-    valid = (epidermis_optical_thickness(fields, lam) >= 1.0) & (fields["epidermis_thickness_mm"][:, None] >= PROFILE_MIN_EPIDERMIS_MM)
-    values = np.asarray(profiles({k: jnp.asarray(v, dtype) for k, v in fields.items()}, jnp.asarray(lam, dtype), radii))
+    # the profile's shape is the multipole's for either method
+    valid = (epidermis_optical_thickness(fields, lam, model) >= 1.0) & (fields["epidermis_thickness_mm"][:, None] >= PROFILE_MIN_EPIDERMIS_MM)
+    values = np.asarray(profiles({k: jnp.asarray(v, dtype) for k, v in fields.items()}, jnp.asarray(lam, dtype), radii, model=model))
     peak = np.max(np.abs(values), axis=-1)
     floor = max(PROFILE_FLOOR, 16 * float(np.finfo(values.dtype).eps))  # float32 rounds at ~1e-7 of the peak
     negative = np.max(-values, axis=-1) > floor * peak  # (n, n_wavelengths)
-    model = np.zeros_like(negative)
+    own = np.zeros_like(negative)
     for j in range(len(lam)):
         rows = np.flatnonzero(negative[:, j] & valid[:, j])
         for start in range(0, rows.size, 32):
             chunk = np.resize(rows[start:start + 32], 32)  # fixed shape: one compilation
-            fine = np.asarray(profiles({k: jnp.asarray(v[chunk]) for k, v in fields.items()}, jnp.asarray(lam[j:j + 1]), radii, FINE_QUADRATURE))[:, 0]
+            fine = np.asarray(profiles({k: jnp.asarray(v[chunk]) for k, v in fields.items()}, jnp.asarray(lam[j:j + 1]), radii,
+                                       FINE_QUADRATURE, model))[:, 0]
             fine_peak = np.max(np.abs(fine), axis=-1)
-            model[chunk, j] = np.max(-fine, axis=-1) > PROFILE_FLOOR * fine_peak
+            own[chunk, j] = np.max(-fine, axis=-1) > PROFILE_FLOOR * fine_peak
     of_peak = np.max(-values, axis=-1) / np.maximum(peak, np.finfo(values.dtype).tiny)
     return {
         "profile_points": int(values.size),
         "profile_points_in_validity": int(np.sum(valid) * radii.size),
         "profile_nan_inf": int(np.sum(~np.isfinite(values))),
-        "profile_negative": int(np.sum(negative & valid & ~model)),
-        "profile_negative_model": int(np.sum(negative & valid & model)),
-        "profile_negative_model_worst_of_peak": float(np.max(of_peak[negative & valid & model], initial=0.0)),
+        "profile_negative": int(np.sum(negative & valid & ~own)),
+        "profile_negative_model": int(np.sum(negative & valid & own)),
+        "profile_negative_model_worst_of_peak": float(np.max(of_peak[negative & valid & own], initial=0.0)),
         "outside_validity_profile_negative": int(np.sum(negative & ~valid)),
     }
 
 
-def check_finite_differences(rng: np.random.Generator, n: int = 512) -> dict[str, int]:
+def check_finite_differences(rng: np.random.Generator, n: int = 512, model=MODEL) -> dict[str, int]:
     """Forward-mode derivatives against central differences, float64, interior points."""
     fields = draw(rng, n, edges=0.0)
     for name in FIELDS[:4]:
         fields[name] = 0.02 + 0.96 * fields[name]
     fields["epidermis_thickness_mm"] = np.clip(fields["epidermis_thickness_mm"], 1e-3, 5.0)
     lam = draw_wavelengths(rng, 8)
-    _, derivatives = values_and_derivatives({k: jnp.asarray(v) for k, v in fields.items()}, jnp.asarray(lam))
-    values = lambda x: np.asarray(values_and_derivatives({k: jnp.asarray(v) for k, v in x.items()}, jnp.asarray(lam))[0])  # noqa: E731
+    _, derivatives = values_and_derivatives({k: jnp.asarray(v) for k, v in fields.items()}, jnp.asarray(lam), model)
+    values = lambda x: np.asarray(values_and_derivatives({k: jnp.asarray(v) for k, v in x.items()}, jnp.asarray(lam), model)[0])  # noqa: E731
     base = values(fields)
     mismatched = 0
     for name in FIELDS:
@@ -275,8 +290,8 @@ VIOLATIONS = (
 
 
 def sweep(points: int = 1_000_000, seed: int = 0, chunk_sets: int = 4096, profile_sets: int = 256,
-          solvers: bool = True, progress: bool = True) -> dict:
-    """Run the sweep with at least ``points`` model points per dtype; returns counts per dtype."""
+          solvers: bool = True, progress: bool = True, model=MODEL) -> dict:
+    """Run the sweep of ``model`` with at least ``points`` model points per dtype; returns counts per dtype."""
     rng = np.random.default_rng(seed)
     report = {}
     radii = np.geomspace(1e-3, 50.0, 64)
@@ -284,15 +299,16 @@ def sweep(points: int = 1_000_000, seed: int = 0, chunk_sets: int = 4096, profil
         totals: dict[str, float] = {}
         chunks = int(np.ceil(points / (chunk_sets * WAVELENGTHS_PER_CHUNK)))
         for i in range(chunks):
-            counts = check_chunk(draw(rng, chunk_sets), draw_wavelengths(rng), dtype)
+            counts = check_chunk(draw(rng, chunk_sets), draw_wavelengths(rng), dtype, model)
             for key, value in counts.items():
                 totals[key] = totals.get(key, 0) + value
             if progress:
-                print(f"  stress {jnp.dtype(dtype).name}: chunk {i + 1}/{chunks}", end="\r", flush=True)
-        counts = check_profiles(draw(rng, profile_sets), draw_wavelengths(rng), radii, dtype)
+                print(f"  stress {model.name} {jnp.dtype(dtype).name}: chunk {i + 1}/{chunks}", end="\r", flush=True)
+        counts = check_profiles(draw(rng, profile_sets), draw_wavelengths(rng), radii, dtype, model)
         totals.update(counts)
         report[jnp.dtype(dtype).name] = totals
-    report["float64"].update(check_finite_differences(rng))
+    report["model"] = model.name
+    report["float64"].update(check_finite_differences(rng, model=model))
     if solvers:
         report["solvers"] = check_solvers(rng)
     parts = [part for part in report.values() if isinstance(part, dict)]
@@ -308,14 +324,15 @@ def main(argv=None):
     parser.add_argument("--points", type=int, default=1_000_000, help="model points per dtype (default 1e6)")
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--out", default="benchmarks/results")
+    parser.add_argument("--model", default="dj2006", choices=tuple(MODELS))
     args = parser.parse_args(argv)
     start = time.perf_counter()
-    report = sweep(args.points, args.seed)
+    report = sweep(args.points, args.seed, model=MODELS[args.model]())
     report["seconds"] = time.perf_counter() - start
     report["machine"] = f"{platform.machine()}, jax {jax.__version__} on {jax.default_backend()}"
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
-    (out / "stress.json").write_text(json.dumps(report, indent=2))
+    (out / ("stress.json" if args.model == "dj2006" else f"stress_{args.model}.json")).write_text(json.dumps(report, indent=2))
     print(json.dumps(report, indent=2))
     return 0 if report["violations"] == 0 else 1
 

@@ -7,18 +7,22 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
+import skinfit
 from benchmarks import stress
 
 unit = st.floats(0.0, 1.0)
 
 
 @pytest.mark.slow
-@pytest.mark.slow
-def test_fast_sweep_has_no_violations():
-    report = stress.sweep(points=65536, profile_sets=32, solvers=False, progress=False)
+@pytest.mark.parametrize("model_name", tuple(stress.MODELS))
+def test_fast_sweep_has_no_violations(model_name):
+    model = stress.MODELS[model_name]()
+    report = stress.sweep(points=65536, profile_sets=32, solvers=False, progress=False, model=model)
     for dtype in ("float64", "float32"):
         assert report[dtype]["points"] >= 65536
         assert report[dtype]["points_in_validity"] > 0.3 * report[dtype]["points"]
+    if isinstance(model.method, skinfit.Transport):  # exact transport: monotone at every optical thickness
+        assert report["float64"]["points_in_validity"] == report["float64"]["points"]
     assert report["float64"]["fd_points"] > 0
     assert report["violations"] == 0, report
 
