@@ -1,6 +1,6 @@
 """Numerical stress sweep: the forward model, its derivatives and the solvers over extreme inputs.
 
-Run: python -m benchmarks.stress [--points 1000000] [--model dj2006|default] [--out benchmarks/results]
+Run: python -m benchmarks.stress [--points 1000000] [--model dj2006|default] [--out benchmarks/results/pareto]
 
 Two models: DJ2006 on the multipole (``stress.json``) and the package default, the calibrated
 constants on tabulated exact transport (``stress_default.json``). Exact transport has no validity
@@ -42,7 +42,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import platform
 import time
 from pathlib import Path
 
@@ -52,6 +51,7 @@ import jax.numpy as jnp
 import numpy as np
 
 import skinfit
+from benchmarks._record import provenance
 from skinfit.model import (
     HankelQuadrature,
     inverse_kernel,
@@ -323,13 +323,13 @@ def main(argv=None):
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--points", type=int, default=1_000_000, help="model points per dtype (default 1e6)")
     parser.add_argument("--seed", type=int, default=0)
-    parser.add_argument("--out", default="benchmarks/results")
+    parser.add_argument("--out", default="benchmarks/results/pareto")  # where python -m benchmarks writes it
     parser.add_argument("--model", default="dj2006", choices=tuple(MODELS))
     args = parser.parse_args(argv)
     start = time.perf_counter()
     report = sweep(args.points, args.seed, model=MODELS[args.model]())
     report["seconds"] = time.perf_counter() - start
-    report["machine"] = f"{platform.machine()}, jax {jax.__version__} on {jax.default_backend()}"
+    report.update(provenance())
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     (out / ("stress.json" if args.model == "dj2006" else f"stress_{args.model}.json")).write_text(json.dumps(report, indent=2))

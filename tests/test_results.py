@@ -24,6 +24,7 @@ DEPENDS_ON = {
     "calibration_methods.json": ("benchmarks/calibrate_model.py", ["skinfit/model", "skinfit/fit"]),
     "capture_skin_rule.json": ("benchmarks/capture_skin_rule.py", ["skinfit/model", "skinfit/fit", "skinfit/colorimetry", "skinfit/io"]),
     "fit_image.json": ("benchmarks/fit_image.py", ["skinfit/fit", "skinfit/colorimetry"]),
+    "fit_image_box.json": ("benchmarks/fit_image_box.py", ["skinfit/model", "skinfit/fit", "skinfit/colorimetry"]),
     "fit_measured.json": ("benchmarks/fit_measured.py", ["skinfit/model", "skinfit/fit"]),
     "fit_nist.json": ("benchmarks/fit_nist.py", ["skinfit/model", "skinfit/fit"]),
     "fit_realistic.json": ("benchmarks/fit_realistic.py", ["skinfit/model", "skinfit/fit"]),

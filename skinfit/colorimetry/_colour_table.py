@@ -25,7 +25,6 @@ Levenberg-Marquardt step (53 % with the Newton step limited to 0.01 in the roots
 from __future__ import annotations
 
 import dataclasses
-import functools
 
 import equinox as eqx
 import jax
@@ -33,6 +32,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from .._batching import map_batches
+from .._caching import BoundedCache, eager_cached_property
 from .._validate import SkinfitInputError
 from ..model import (
     SkinModel,
@@ -56,6 +56,11 @@ _AFFINE_REACH = 0.3
 #: Spline nodes per axis of a transport table, whose node derivatives come from an interpolating
 #: spline (error against exact transport measured in tests/colorimetry/test_colour_table.py).
 TRANSPORT_NODES = 33
+
+#: Roots per axis of the spline sampling that ``ColourTable.starts_for_colours`` searches, and the
+#: floor of the colours' logarithms there.
+_SEARCH_NODES = 97
+_LOG_FLOOR = 1e-6
 
 #: Wavelengths of the colour integral (nm).
 COLOUR_WAVELENGTHS_NM = np.arange(400.0, 701.0, 10.0)
@@ -93,11 +98,28 @@ class ColourTable:
         """Both warm starts (n, 2 branches, 2) for linear sRGB pixels (n, 3) (see ``warm_starts``)."""
         return np.asarray(warm_starts(self.device_inverse, jnp.asarray(pixels)))
 
-    @functools.cached_property
+    @eager_cached_property
     def device_inverse(self) -> tuple:
         """The inverse table as JAX arrays, for ``warm_starts`` inside compiled code."""
         arrays = (*self.inverse_edges, self.inverse_roots, self.inverse_chroma, self.inverse_jacobian)
         return tuple(jnp.asarray(a) for a in arrays)
+
+    def starts_for_colours(self, colours: np.ndarray) -> np.ndarray:
+        """Roots (n, 2) whose spline colour (shading 1) is nearest each of ``colours`` (n, 3), linear
+        sRGB, in log colour: a start for a pixel whose shading is known (``colours`` = the pixel
+        over it), on whichever branch of the fold that shading selects."""
+        roots, tree = self._colour_search
+        _, nearest = tree.query(np.log(np.maximum(np.asarray(colours, dtype=float), _LOG_FLOOR)), workers=-1)
+        return roots[nearest]
+
+    @eager_cached_property
+    def _colour_search(self):
+        from scipy.spatial import cKDTree
+
+        grid = np.linspace(0.0, 1.0, _SEARCH_NODES)
+        roots = np.stack([a.ravel() for a in np.meshgrid(grid, grid, indexing="ij")], axis=-1)
+        colours = np.asarray(spline_rgb(jnp.asarray(self.coefficients), jnp.asarray(roots))[0])
+        return roots, cKDTree(np.log(np.maximum(colours, _LOG_FLOOR)))
 
     def model_arguments(self):
         """(melanin_blend, melanin_max, haemoglobin_max, weights, model): what ``model_rgb``
@@ -137,17 +159,11 @@ def colour_table(
         nodes = TRANSPORT_NODES if direct else 129
     key = (float(melanin_blend), str(illuminant), float(melanin_max), float(haemoglobin_max), int(nodes), int(inverse_cells),
            cache_key(model))
-    table = _TABLES.get(key)
-    if table is None:
-        table = _colour_table(float(melanin_blend), str(illuminant), float(melanin_max), float(haemoglobin_max), int(nodes),
-                              int(inverse_cells), model, direct)
-        _TABLES[key] = table
-        while len(_TABLES) > 8:
-            _TABLES.pop(next(iter(_TABLES)))
-    return table
+    return _TABLES.get(key, lambda: _colour_table(float(melanin_blend), str(illuminant), float(melanin_max), float(haemoglobin_max),
+                                                  int(nodes), int(inverse_cells), model, direct))
 
 
-_TABLES: dict = {}
+_TABLES = BoundedCache(8)
 
 
 def _colour_table(melanin_blend, illuminant, melanin_max, haemoglobin_max, nodes, inverse_cells, model, direct) -> ColourTable:

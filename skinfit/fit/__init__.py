@@ -4,7 +4,7 @@ constants against measured spectra.
 """
 
 from ._image_calibration import ImageCalibration, calibrate
-from ._images import ImageFit, fit_image
+from ._images import ImageFit, fit_image, population_blend, skin_box
 from ._linalg import solve_normal
 from ._lockstep import LockstepState
 from ._model_calibration import (
@@ -46,9 +46,11 @@ __all__ = [
     "neighbourhood_median",
     "on_a_bound",
     "PixelStatus",
+    "population_blend",
     "prior_table",
     "smooth_field",
     "solve_normal",
+    "skin_box",
     "SolverSettings",
     "speckle_fraction",
     "SpectralFit",

@@ -28,7 +28,7 @@ from ..model import SkinModel, model_with_options, resolve_model
 from ._image_calibration import calibrate
 from ._pixels import PixelStatus, fit_pixels, screen_pixels
 from ._spatial import neighbourhood_median, smooth_field
-from ._variables import VARIABLES, prior_coordinate
+from ._variables import VARIABLES
 
 #: ``PixelStatus``, ``fit_pixels`` (``pixel_fit``) and ``render_maps`` (``map_rendering``) are
 #: re-exported: this module is where users have found them.
@@ -198,7 +198,7 @@ def fit_image(
         if isinstance(white_balance, str) and white_balance == "auto":
             white_balance = "none"
     if melanin_blend is None:
-        melanin_blend = _population_blend(model)
+        melanin_blend = population_blend(model)
     if isinstance(white_balance, bool):
         white_balance = "auto" if white_balance else "none"
     gains = np.ones(3)
@@ -237,7 +237,7 @@ def fit_image(
                     model=model, colour_chart=chart)
 
 
-def _population_blend(model: SkinModel) -> float:
+def population_blend(model: SkinModel) -> float:
     """The blend a fit uses when none is given: the population prior's mean, else DJ2006's 0.7."""
     prior = model.prior
     if prior is None or "melanin_blend" not in prior.names:
@@ -248,7 +248,7 @@ def _population_blend(model: SkinModel) -> float:
 
 
 #: Shading ratio to the smooth field beyond which a pixel's branch is chosen again.
-_FAR_FROM_FIELD = np.log(1.25)
+_FAR_FROM_FIELD = np.log(1.1)
 
 
 def _fitted(maps) -> np.ndarray:
@@ -260,13 +260,14 @@ def _field_sigma(shape) -> float:
     return max(2.0, 0.01 * max(shape))
 
 
-def _shading_field(maps) -> np.ndarray:
-    """Smooth ln-shading field of the fitted pixels, twice: the second leaves out pixels far from
-    the first (those on the other branch)."""
+def _shading_field(maps, sigma: float | None = None) -> np.ndarray:
+    """Smooth ln-shading field of the fitted pixels at scale ``sigma`` (pixels; default
+    ``_field_sigma``), twice: the second leaves out pixels far from the first (those on the other
+    branch)."""
 
     fitted = _fitted(maps)
     log_k = np.log(np.maximum(maps["shading"], np.float32(1e-12)))  # float32, as the maps
-    sigma = _field_sigma(log_k.shape)
+    sigma = _field_sigma(log_k.shape) if sigma is None else sigma
     field = smooth_field(log_k, fitted, sigma)
     near = fitted & (np.abs(log_k - field) <= _FAR_FROM_FIELD)
     return smooth_field(log_k, near, sigma)
@@ -287,13 +288,23 @@ def _refit(rgb, gains, maps, where, options, band_pixels: int = 1 << 18, **overr
             maps[k][index] = v
 
 
+#: Scales of the coarser shading fields the branches are first chosen against, as fractions of the
+#: image's larger side. The first pass chooses against one shading for a whole band, so where the
+#: shading spans 2x a region as large as the fold (a third of a smooth map over the whole box) can
+#: come out on the other branch; a field at the fine scale alone then follows that region.
+_COARSE_FIELD_SCALES = (0.15, 0.05)
+
+
 def _coherent_branches(rgb, gains, maps, options) -> np.ndarray:
-    """Choose the fold's branch again against the local shading field where the first pass's
-    shading is far from it; returns the field (h, w) (linear shading)."""
-    field = np.exp(_shading_field(maps))
-    # out-of-model pixels (hair, background) have no branch worth choosing, and are the slowest to refit
-    far = _fitted(maps) & (np.abs(np.log(np.maximum(maps["shading"], np.float32(1e-12)) / field)) > _FAR_FROM_FIELD)
-    _refit(rgb, gains, maps, far, options, shading_reference=field)
+    """Choose the fold's branch again against smooth shading fields, coarse to fine, where the
+    shading so far is far from them; returns the finest field (h, w) (linear shading)."""
+    size = max(maps["shading"].shape)
+    for sigma in (*(max(2.0, scale * size) for scale in _COARSE_FIELD_SCALES), None):
+        field = np.exp(_shading_field(maps, sigma))
+        # out-of-model pixels (hair, background) have no branch worth choosing, and are the slowest to refit
+        far = _fitted(maps) & (np.abs(np.log(np.maximum(maps["shading"], np.float32(1e-12)) / field)) > _FAR_FROM_FIELD)
+        if far.any():
+            _refit(rgb, gains, maps, far, options, shading_reference=field)
     return field
 
 
@@ -337,23 +348,50 @@ _OTHER_SURFACE = np.log(3.0)
 #: 0.5-85 %, C_h outside 0.08-62 % for the calibrated model's prior).
 _IMPLAUSIBLE_Z = 5.0
 
+#: Standard error, as a fraction of the table's top, below which a value on the top is set by the colour.
+_IDENTIFIED = 0.25
+
+#: CIEDE2000 within which a fit on the box's top reproduces its pixel: the colour lies inside the box.
+_EXACT_DE = 0.05
+
+
+def skin_box(model: SkinModel) -> dict[str, tuple[float, float]]:
+    """The melanin and haemoglobin that an image fit calls skin, ``{name: (low, high)}``: the
+    colour table's box (up to ``MELANIN_MAX``, ``HAEMOGLOBIN_MAX``), narrowed by the model's
+    population prior to within ``_IMPLAUSIBLE_Z`` of its standard deviations. A fit outside it by
+    more than one of its standard errors is ``NOT_SKIN``; every colour of a skin inside it is
+    fitted as skin (``benchmarks/fit_image_box.py``)."""
+    box = {"melanin": (0.0, MELANIN_MAX), "haemoglobin": (0.0, HAEMOGLOBIN_MAX)}
+    population = resolve_model(model).prior
+    if population is None:
+        return box
+    for name, (low, high) in box.items():
+        mean, sd = population.moments(name)  # in ln C (prior_coordinate)
+        box[name] = (max(low, float(np.exp(mean - _IMPLAUSIBLE_Z * sd))), min(high, float(np.exp(mean + _IMPLAUSIBLE_Z * sd))))
+    return box
+
 
 def _classify(rgb, gains, maps, field, model):
     """Statuses of pixels that fit the model badly or implausibly: ``SPECULAR`` (the smooth local
     skin colour at no less than 80 % of the local shading plus a white component of at least 10 %
-    of the pixel), ``NOT_SKIN`` (roots pinned at the box's far edge, ln C more than
-    ``_IMPLAUSIBLE_Z`` prior standard deviations from the population mean, or a shading 3x off the
-    smooth field of its surroundings: hair, brows, eyes).
+    of the pixel), ``NOT_SKIN`` (outside ``skin_box`` by more than two standard errors, pinned at
+    the box's top by a colour beyond it, or a shading 3x off the smooth field of its surroundings:
+    hair, brows, eyes).
     Their maps are zeroed: a value no skin has is never presented as skin."""
 
     status = maps["status"]
-    pinned = (maps["melanin"] >= 0.999 * MELANIN_MAX) | (maps["haemoglobin"] >= 0.999 * HAEMOGLOBIN_MAX)
-    implausible = pinned
-    population = model.prior
-    if population is not None:
-        for name in ("melanin", "haemoglobin"):
-            mean, sd = population.moments(name)
-            implausible = implausible | (np.abs(prior_coordinate(name, maps[name]) - mean) > _IMPLAUSIBLE_Z * sd)
+    box = skin_box(model)
+    implausible = np.zeros(status.shape, bool)
+    for name, top in (("melanin", MELANIN_MAX), ("haemoglobin", HAEMOGLOBIN_MAX)):
+        value, low, high = maps[name], *box[name]
+        # pinned at the table's top by a colour beyond it. A value there that the colour does not
+        # identify (haemoglobin under heavy melanin: its standard error spans the box), or that
+        # fits the colour exactly (a skin at the top of the box), is skin.
+        se = maps[f"{name}_se"]
+        pinned = (value >= 0.999 * top) & (se < _IDENTIFIED * top) & (maps["residual_dE2000"] > _EXACT_DE)
+        # outside the skin box by more than the fit's own uncertainty (one standard error: two let
+        # glints, whose melanin falls just below the box, pass as skin)
+        implausible |= pinned | (value + se < low) | (value - se > high)
     # another surface than the skin around it (hair, brows, eyes): a shading far from the field
     implausible = implausible | (np.abs(np.log(np.maximum(maps["shading"], 1e-12) / field)) > _OTHER_SURFACE)
     status[(status <= PixelStatus.OUT_OF_MODEL) & implausible] = PixelStatus.NOT_SKIN

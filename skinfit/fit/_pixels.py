@@ -485,27 +485,30 @@ def _solve(table, target, prior, steps, straggler_steps, max_rounds, lm_max_step
     normal matrix (n, 3)."""
     coefficients = jnp.asarray(table.coefficients)
     spline = lambda count: lambda t, r, d, p: _spline_chunk(coefficients, r, t, d, p, count)  # noqa: E731
-    initial_damping = lambda n: np.full(n, _INITIAL_DAMPING)  # noqa: E731
     if initial is not None:  # a refit from an earlier fit: its roots, its branch
-        out = map_batches(spline(steps), (target, initial, initial_damping(len(target)), prior), size, progress, "fitting pixels")
+        out = map_batches(spline(steps), (target, initial, np.full(len(target), _INITIAL_DAMPING), prior), size, progress, "fitting pixels")
         second, two = initial, np.zeros(len(target), bool)
     else:
         first = lambda t, p: _first_pass_chunk(coefficients, table.device_inverse, t, p, steps)  # noqa: E731
         *out, second, two = map_batches(first, (target, prior), size, progress, "fitting pixels")
     # The fold's second branch, tried only where the inverse table has one and the first branch's
     # shading is far from the reference (the branches' shadings differ by 2-5x) or it fits poorly.
+    field = reference is not None and np.ndim(reference) > 0  # a shading per pixel: a smooth field of the image
     if reference is None:
         good = out[1][~two & (out[1] > 0)]
         reference = float(np.median(good)) if good.size else 1.0
     reference = np.broadcast_to(np.asarray(reference, dtype=float), out[1].shape)
-    doubtful = np.abs(np.log(np.maximum(out[1], 1e-12) / reference)) > np.log(1.25)
+    doubtful = np.abs(np.log(np.maximum(out[1], 1e-12) / reference)) > (_DOUBTFUL_FROM_FIELD if field else _DOUBTFUL)
     retry = np.flatnonzero(two & (doubtful | (out[3] > 1e-2)))
-    if retry.size:
-        other = map_batches(spline(steps), (target[retry], second[retry], initial_damping(retry.size), prior[retry]), _SUBSET_CHUNK)
-        both = [np.stack([a[retry], b]) for a, b in zip(out, other)]  # each (2, len(retry), ...)
-        choice = _choose_branch(both[1], both[3], reference[retry])
-        for full, pair in zip(out, both):
-            full[retry] = pair[choice, np.arange(retry.size)]
+    _try_other_start(out, retry, second[retry], spline(steps), target, prior, reference)
+    # Where neither start lands near a shading field (in parts of the fold the inverse table's second
+    # start leads back to the first branch), a third: the spline's colour nearest the pixel over
+    # the field's shading, which lies on the branch that shading selects. Against one shading for
+    # all pixels it would pull every pixel of a flat valley (heavy melanin) toward that shading.
+    lost = np.flatnonzero(np.abs(np.log(np.maximum(out[1], 1e-12) / reference)) > _LOST) if field else np.empty(0, int)
+    if lost.size:
+        third = table.starts_for_colours(target[lost] / reference[lost, None])
+        _try_other_start(out, lost, third, spline(steps), target, prior, reference)
     roots, shading, remaining, residual, fitted, damping, normal = out
 
     # a colour this far from the model after the first steps is outside the gamut (hair, cloth,
@@ -530,6 +533,30 @@ def _solve(table, target, prior, steps, straggler_steps, max_rounds, lm_max_step
     return out[:5] + [out[6]]
 
 
+#: |ln(shading / reference)| beyond which a pixel with a second start tries it: against one shading
+#: for all pixels, and against a smooth field of the image. Near the fold's edge its branches differ
+#: by as little as 1.1-1.3x in shading (both fit exactly), so against a field a coarser threshold
+#: leaves a strip on the other branch; against one shading a finer one pulls pixels of a flat valley
+#: toward it (noisy copies of one pixel: scatter 0.7x the standard error at 1.05, 0.95x at 1.25).
+_DOUBTFUL = np.log(1.25)
+_DOUBTFUL_FROM_FIELD = np.log(1.05)
+#: Against a field, |ln(shading / field)| beyond which a pixel still that far tries a third start.
+_LOST = np.log(1.1)
+
+
+def _try_other_start(out, index, starts, spline, target, prior, reference):
+    """Fit the pixels ``index`` again from ``starts`` (len(index), 2) and keep, per pixel, the fit
+    that ``_choose_branch`` prefers (``out``: the solver's outputs, updated in place)."""
+    if not index.size:
+        return
+    damping = np.full(index.size, _INITIAL_DAMPING)
+    other = map_batches(spline, (target[index], starts, damping, prior[index]), _SUBSET_CHUNK)
+    both = [np.stack([a[index], b]) for a, b in zip(out, other)]  # each (2, len(index), ...)
+    choice = _choose_branch(both[1], both[3], reference[index])
+    for full, pair in zip(out, both):
+        full[index] = pair[choice, np.arange(index.size)]
+
+
 #: Relative residual (with the prior rows) beyond which a pixel still moving is not polished
 #: further (CIEDE2000 is then well above 1); it keeps its status MAX_STEPS or OUT_OF_MODEL.
 _HOPELESS_RESIDUAL = 0.03
@@ -546,8 +573,7 @@ def _choose_branch(shading, residual, reference) -> np.ndarray:
     (one value or (n,)).
 
     Inputs (2, n). Branches whose relative residual is within 1 % of the best fit equally well
-    (8-bit quantisation alone leaves residuals of 1e-3); among them the shading decides.
-    """
+    (8-bit quantisation alone leaves residuals of 1e-3); among them the shading decides."""
     fits = residual <= residual.min(axis=0) + 1e-2
     distance = np.abs(np.log(np.maximum(shading, 1e-12) / reference))
     return np.argmin(np.where(fits, distance, np.inf), axis=0)
