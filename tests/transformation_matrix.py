@@ -28,7 +28,8 @@ import jax.numpy as jnp
 import numpy as np
 
 import skinfit
-from skinfit import colorimetry, model as skin_model
+from skinfit import colorimetry
+from skinfit import model as skin_model
 
 #: Three parameters every case maps to its outputs: melanin, melanin blend, haemoglobin.
 POINT = np.array([0.08, 0.6, 0.03])
