@@ -319,6 +319,11 @@ def sweep(points: int = 1_000_000, seed: int = 0, chunk_sets: int = 4096, profil
     return report
 
 
+def result_file(model_name: str) -> str:
+    """The results file of a model's sweep: ``stress.json`` (DJ2006), ``stress_<name>.json`` for the others."""
+    return "stress.json" if model_name == "dj2006" else f"stress_{model_name}.json"
+
+
 def main(argv=None):
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--points", type=int, default=1_000_000, help="model points per dtype (default 1e6)")
@@ -332,7 +337,7 @@ def main(argv=None):
     report.update(provenance())
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
-    (out / ("stress.json" if args.model == "dj2006" else f"stress_{args.model}.json")).write_text(json.dumps(report, indent=2))
+    (out / result_file(args.model)).write_text(json.dumps(report, indent=2))
     print(json.dumps(report, indent=2))
     return 0 if report["violations"] == 0 else 1
 

@@ -357,10 +357,8 @@ def load_table(path) -> TransportTable:
     with np.load(path) as data:
         if int(data["format"]) != _FORMAT:
             raise ValueError(f"transport table format {int(data['format'])}, expected {_FORMAT}")
-        # converted in NumPy and placed as a concrete array even when the first use is inside a jit
-        # trace: the table is cached in memory and must not capture a tracer
-        with jax.ensure_compile_time_eval():
-            coefficients = jnp.asarray(np.asarray(data["coefficients"], dtype=np.float64))
+        # (``transport_table`` caches it through skinfit._caching, which builds outside any trace)
+        coefficients = jnp.asarray(np.asarray(data["coefficients"], dtype=np.float64))
         return TransportTable(
             coefficients=coefficients,
             lower=tuple(float(v) for v in data["lower"]),
