@@ -108,9 +108,17 @@ class ColourTable:
         """Roots (n, 2) whose spline colour (shading 1) is nearest each of ``colours`` (n, 3), linear
         sRGB, in log colour: a start for a pixel whose shading is known (``colours`` = the pixel
         over it), on whichever branch of the fold that shading selects."""
-        roots, tree = self._colour_search
-        _, nearest = tree.query(np.log(np.maximum(np.asarray(colours, dtype=float), _LOG_FLOOR)), workers=-1)
-        return roots[nearest]
+        return self._colour_search[0][self._nearest(colours)[1]]
+
+    def colour_distance(self, colours: np.ndarray, upper_bound: float = np.inf) -> np.ndarray:
+        """Distance (n,) in log colour (about the relative colour error) from each of ``colours``
+        (n, 3) to the nearest colour of the spline's sampling (``_SEARCH_NODES`` per axis); inf
+        beyond ``upper_bound``, which prunes the search (150,000 colours: 1.27 s without, 0.017 s at 0.03)."""
+        return self._nearest(colours, upper_bound)[0]
+
+    def _nearest(self, colours, upper_bound: float = np.inf):
+        _, tree = self._colour_search
+        return tree.query(np.log(np.maximum(np.asarray(colours, dtype=float), _LOG_FLOOR)), distance_upper_bound=upper_bound, workers=-1)
 
     @eager_cached_property
     def _colour_search(self):

@@ -21,6 +21,7 @@ from ..colorimetry import (
     MELANIN_MAX,
     ChartCalibration,
     chart_calibration,
+    colour_table,
     render_maps,
 )
 from ..io import read_linear_rgb, read_mask
@@ -293,16 +294,35 @@ def _refit(rgb, gains, maps, where, options, band_pixels: int = 1 << 18, **overr
 #: shading spans 2x a region as large as the fold (a third of a smooth map over the whole box) can
 #: come out on the other branch; a field at the fine scale alone then follows that region.
 _COARSE_FIELD_SCALES = (0.15, 0.05)
+#: Shading ratio to a coarse field beyond which a pixel's branch is chosen again: the branches a
+#: coarse field must bring back differ by 1.5-2.5x, and a face's own shading strays from a coarse
+#: field by more than 1.1x at most pixels (at 1.1x the coarse passes refitted 70 % of a real capture).
+_FAR_FROM_COARSE_FIELD = np.log(1.25)
+
+
+#: Distance in log colour (``ColourTable.colour_distance``) within which the model has a colour:
+#: the table's sampling leaves up to 0.028 between a pixel over its true shading and its nearest node.
+_COLOUR_REACH = 0.03
+
+
+def _has_colour_at(table, albedo) -> np.ndarray:
+    """Whether the model has a colour near each of ``albedo`` (n, 3): a pixel whose colour over the
+    field's shading is not one (on a real capture, almost no pixel 1.3x off its fitted shading) has
+    no branch there, and a refit could not move it."""
+    return table.colour_distance(albedo, upper_bound=_COLOUR_REACH) <= _COLOUR_REACH
 
 
 def _coherent_branches(rgb, gains, maps, options) -> np.ndarray:
     """Choose the fold's branch again against smooth shading fields, coarse to fine, where the
     shading so far is far from them; returns the finest field (h, w) (linear shading)."""
+    table = options.get("table") or colour_table(options["melanin_blend"], options["illuminant"], model=options["model"])
     size = max(maps["shading"].shape)
-    for sigma in (*(max(2.0, scale * size) for scale in _COARSE_FIELD_SCALES), None):
+    levels = [(max(2.0, scale * size), _FAR_FROM_COARSE_FIELD) for scale in _COARSE_FIELD_SCALES] + [(None, _FAR_FROM_FIELD)]
+    for sigma, far_from in levels:
         field = np.exp(_shading_field(maps, sigma))
         # out-of-model pixels (hair, background) have no branch worth choosing, and are the slowest to refit
-        far = _fitted(maps) & (np.abs(np.log(np.maximum(maps["shading"], np.float32(1e-12)) / field)) > _FAR_FROM_FIELD)
+        far = _fitted(maps) & (np.abs(np.log(np.maximum(maps["shading"], np.float32(1e-12)) / field)) > far_from)
+        far[far] = _has_colour_at(table, rgb[far] / gains / field[far][:, None])
         if far.any():
             _refit(rgb, gains, maps, far, options, shading_reference=field)
     return field
@@ -348,7 +368,7 @@ _OTHER_SURFACE = np.log(3.0)
 #: 0.5-85 %, C_h outside 0.08-62 % for the calibrated model's prior).
 _IMPLAUSIBLE_Z = 5.0
 
-#: Standard error, as a fraction of the table's top, below which a value on the top is set by the colour.
+#: Standard error, as a fraction of the table's top, below which (and below the value itself) the colour sets a value.
 _IDENTIFIED = 0.25
 
 #: CIEDE2000 within which a fit on the box's top reproduces its pixel: the colour lies inside the box.
@@ -358,8 +378,8 @@ _EXACT_DE = 0.05
 def skin_box(model: SkinModel) -> dict[str, tuple[float, float]]:
     """The melanin and haemoglobin that an image fit calls skin, ``{name: (low, high)}``: the
     colour table's box (up to ``MELANIN_MAX``, ``HAEMOGLOBIN_MAX``), narrowed by the model's
-    population prior to within ``_IMPLAUSIBLE_Z`` of its standard deviations. A fit outside it by
-    more than one of its standard errors is ``NOT_SKIN``; every colour of a skin inside it is
+    population prior to within ``_IMPLAUSIBLE_Z`` of its standard deviations. A fit outside it
+    is ``NOT_SKIN``; every colour of a skin inside it is
     fitted as skin (``benchmarks/fit_image_box.py``)."""
     box = {"melanin": (0.0, MELANIN_MAX), "haemoglobin": (0.0, HAEMOGLOBIN_MAX)}
     population = resolve_model(model).prior
@@ -384,14 +404,13 @@ def _classify(rgb, gains, maps, field, model):
     implausible = np.zeros(status.shape, bool)
     for name, top in (("melanin", MELANIN_MAX), ("haemoglobin", HAEMOGLOBIN_MAX)):
         value, low, high = maps[name], *box[name]
-        # pinned at the table's top by a colour beyond it. A value there that the colour does not
-        # identify (haemoglobin under heavy melanin: its standard error spans the box), or that
-        # fits the colour exactly (a skin at the top of the box), is skin.
-        se = maps[f"{name}_se"]
-        pinned = (value >= 0.999 * top) & (se < _IDENTIFIED * top) & (maps["residual_dE2000"] > _EXACT_DE)
-        # outside the skin box by more than the fit's own uncertainty (one standard error: two let
-        # glints, whose melanin falls just below the box, pass as skin)
-        implausible |= pinned | (value + se < low) | (value - se > high)
+        # outside the skin box, or pinned at the table's top by a colour beyond it (missed by more
+        # than _EXACT_DE: a skin at the box's top fits exactly). Only a value the colour identifies
+        # counts: one it does not (haemoglobin under heavy melanin: a standard error larger than the
+        # value, or than a quarter of the box) is skin of unknown C_h, wherever the solver left it.
+        identified = maps[f"{name}_se"] < np.minimum(_IDENTIFIED * top, value)
+        pinned = (value >= 0.999 * top) & (maps["residual_dE2000"] > _EXACT_DE)
+        implausible |= identified & (pinned | (value < low) | (value > high))
     # another surface than the skin around it (hair, brows, eyes): a shading far from the field
     implausible = implausible | (np.abs(np.log(np.maximum(maps["shading"], 1e-12) / field)) > _OTHER_SURFACE)
     status[(status <= PixelStatus.OUT_OF_MODEL) & implausible] = PixelStatus.NOT_SKIN

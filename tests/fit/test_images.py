@@ -318,11 +318,13 @@ def test_every_colour_of_the_skin_box_is_fitted_as_skin(model_name):
 
     model = MODELS[model_name]()
     blend = population_blend(model)
-    # the edges that the prior sets, and haemoglobin's top, are thresholds (a fit within its
-    # standard error or CIEDE2000 0.05 of them may go either way; the benchmark, run on the exact
-    # box, reports those): the render stays 10 % inside them; melanin reaches the table's top
+    # the edges that the prior sets, and haemoglobin's top, are thresholds (a fit near them, or
+    # within CIEDE2000 0.05 of the top, may go either way; the benchmark, run on the exact box,
+    # reports those): the render stays inside them, 50 % at the prior's lowest melanin, where with
+    # much blood the two colour pipelines' 0.1 % difference biases the fit's melanin by up to -20 %,
+    # and 10 % elsewhere; melanin reaches the table's top
     box = skin_box(model)
-    box = {"melanin": (1.1 * box["melanin"][0], box["melanin"][1]),
+    box = {"melanin": (1.5 * box["melanin"][0], box["melanin"][1]),
            "haemoglobin": (1.1 * box["haemoglobin"][0], box["haemoglobin"][1] / 1.1)}
     melanin, haemoglobin, shading = box_maps(64, box)
     rgb = colour_science_render(melanin, haemoglobin, shading, blend, model)
