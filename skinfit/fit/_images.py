@@ -294,10 +294,6 @@ def _refit(rgb, gains, maps, where, options, band_pixels: int = 1 << 18, **overr
 #: shading spans 2x a region as large as the fold (a third of a smooth map over the whole box) can
 #: come out on the other branch; a field at the fine scale alone then follows that region.
 _COARSE_FIELD_SCALES = (0.15, 0.05)
-#: Shading ratio to a coarse field beyond which a pixel's branch is chosen again: the branches a
-#: coarse field must bring back differ by 1.5-2.5x, and a face's own shading strays from a coarse
-#: field by more than 1.1x at most pixels (at 1.1x the coarse passes refitted 70 % of a real capture).
-_FAR_FROM_COARSE_FIELD = np.log(1.25)
 
 
 #: Distance in log colour (``ColourTable.colour_distance``) within which the model has a colour:
@@ -317,11 +313,11 @@ def _coherent_branches(rgb, gains, maps, options) -> np.ndarray:
     shading so far is far from them; returns the finest field (h, w) (linear shading)."""
     table = options.get("table") or colour_table(options["melanin_blend"], options["illuminant"], model=options["model"])
     size = max(maps["shading"].shape)
-    levels = [(max(2.0, scale * size), _FAR_FROM_COARSE_FIELD) for scale in _COARSE_FIELD_SCALES] + [(None, _FAR_FROM_FIELD)]
-    for sigma, far_from in levels:
+    for sigma in (*(max(2.0, scale * size) for scale in _COARSE_FIELD_SCALES), None):
         field = np.exp(_shading_field(maps, sigma))
-        # out-of-model pixels (hair, background) have no branch worth choosing, and are the slowest to refit
-        far = _fitted(maps) & (np.abs(np.log(np.maximum(maps["shading"], np.float32(1e-12)) / field)) > far_from)
+        # out-of-model pixels (hair, background) have no branch worth choosing, and are the slowest to refit;
+        # a face's own shading strays 1.1x from a coarse field at most pixels, but few have a colour there
+        far = _fitted(maps) & (np.abs(np.log(np.maximum(maps["shading"], np.float32(1e-12)) / field)) > _FAR_FROM_FIELD)
         far[far] = _has_colour_at(table, rgb[far] / gains / field[far][:, None])
         if far.any():
             _refit(rgb, gains, maps, far, options, shading_reference=field)
