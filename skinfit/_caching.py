@@ -4,11 +4,13 @@ A public call is as likely to come first inside ``jit``, ``vmap`` or ``grad`` as
 builds once and keeps (the default model, chromophore and colour tables, transport and fit tables)
 must then be built eagerly, whatever trace the caller is in: built inside the trace it would hold
 that trace's tracers, and every later call would meet a leaked tracer. Every cache in skinfit goes
-through one of the three helpers here, which run the build under ``jax.ensure_compile_time_eval``.
+through one of the three helpers here, which run a build that starts inside a trace under
+``jax.ensure_compile_time_eval``.
 """
 
 from __future__ import annotations
 
+import contextlib
 import functools
 from collections import OrderedDict
 from typing import Callable, Hashable, TypeVar
@@ -16,6 +18,18 @@ from typing import Callable, Hashable, TypeVar
 import jax
 
 T = TypeVar("T")
+
+try:  # private, hence guarded: without it every build runs under ensure_compile_time_eval
+    from jax._src.core import trace_state_clean as _no_trace
+except ImportError:  # pragma: no cover - another JAX
+    def _no_trace() -> bool:
+        return False
+
+
+def _eagerly():
+    """``jax.ensure_compile_time_eval()`` inside a trace; nothing outside one, where it would only
+    compile the build's small programs a second time (JAX keys its in-memory cache by the context)."""
+    return contextlib.nullcontext() if _no_trace() else jax.ensure_compile_time_eval()
 
 
 def eager_cache(maxsize: int | None = None):
@@ -28,7 +42,7 @@ def eager_cache(maxsize: int | None = None):
         @functools.lru_cache(maxsize)
         @functools.wraps(build)
         def cached(*args, **kwargs):
-            with jax.ensure_compile_time_eval():
+            with _eagerly():
                 return build(*args, **kwargs)
 
         return cached
@@ -41,7 +55,7 @@ def eager_cached_property(build: Callable[[object], T]) -> functools.cached_prop
 
     @functools.wraps(build)
     def eager(self):
-        with jax.ensure_compile_time_eval():
+        with _eagerly():
             return build(self)
 
     return functools.cached_property(eager)
@@ -62,7 +76,7 @@ class BoundedCache:
         if key in self._entries:
             self._entries.move_to_end(key)
             return self._entries[key]
-        with jax.ensure_compile_time_eval():
+        with _eagerly():
             value = build()
         self._entries[key] = value
         while len(self._entries) > self.size:
