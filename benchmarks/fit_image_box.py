@@ -11,7 +11,8 @@ shadings, and a shading field 0.5-1 across the diagonal. The spectra are the mod
 (``colour.msds_to_XYZ`` under D65, CIE 1931 2 degrees, then ``XYZ_to_RGB`` to linear sRGB), not
 skinfit's colour code. Fitted by ``fit_image`` with ``white_balance="none"`` and the blend of the
 render, priors off (``prior=False``) and with the defaults' priors; reported: relative errors of
-melanin and haemoglobin (median, p99) and the statuses of the pixels.
+melanin and haemoglobin (median, p99; p99 where the colour identifies the value; the share
+of pixels whose two-standard-error interval holds the truth) and the statuses of the pixels.
 """
 
 from __future__ import annotations
@@ -69,8 +70,17 @@ def relative_errors(fit, truth: dict) -> dict:
     fitted = fit.status == skinfit.PixelStatus.SUCCESS
     out = {}
     for name in ("melanin", "haemoglobin"):
-        error = np.abs(getattr(fit, name)[fitted] / truth[name][fitted] - 1.0)
-        out[name] = {"median": float(np.median(error)), "p99": float(np.percentile(error, 99))} if error.size else None
+        value, se, true = getattr(fit, name)[fitted], getattr(fit, f"{name}_se")[fitted], truth[name][fitted]
+        error = np.abs(value / true - 1.0)
+        # where the colour sets the value (the standard error below it and below a quarter of the
+        # box, as NOT_SKIN judges), and whether the standard errors cover the misses
+        identified = se < np.minimum(0.25 * {"melanin": MELANIN_MAX, "haemoglobin": HAEMOGLOBIN_MAX}[name], value)
+        covered = np.abs(value - true) <= 2.0 * se
+        out[name] = {"median": float(np.median(error)), "p99": float(np.percentile(error, 99)),
+                     "identified_fraction": float(np.mean(identified)),
+                     "p99_where_identified": float(np.percentile(error[identified], 99)) if identified.any() else None,
+                     "within_2se_fraction": float(np.mean(covered)),
+                     "within_2se_of_misses_over_10pc": float(np.mean(covered[error > 0.1])) if np.any(error > 0.1) else None} if error.size else None
     shading = np.abs(fit.shading[fitted] / truth["shading"][fitted] - 1.0)
     out["shading"] = {"median": float(np.median(shading)), "p99": float(np.percentile(shading, 99))} if shading.size else None
     return out

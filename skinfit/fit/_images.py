@@ -367,8 +367,13 @@ _IMPLAUSIBLE_Z = 5.0
 #: Standard error, as a fraction of the table's top, below which (and below the value itself) the colour sets a value.
 _IDENTIFIED = 0.25
 
-#: CIEDE2000 within which a fit on the box's top reproduces its pixel: the colour lies inside the box.
-_EXACT_DE = 0.05
+#: CIEDE2000 within which a fit on the box's top reproduces its pixel: the colour lies inside the
+#: box. Two colour pipelines (skinfit's and colour-science's) differ by up to 0.08 at the top.
+_EXACT_DE = 0.15
+
+#: Largest |ln(value / edge)| that a fit may lie beyond the skin box as noise (two standard errors
+#: up to this): a skin on the box's edge fits up to 20 % (1.25x) beyond it; wall and cloth lie further.
+_EDGE_MARGIN = np.log(1.5)
 
 
 def skin_box(model: SkinModel) -> dict[str, tuple[float, float]]:
@@ -390,8 +395,9 @@ def skin_box(model: SkinModel) -> dict[str, tuple[float, float]]:
 def _classify(rgb, gains, maps, field, model):
     """Statuses of pixels that fit the model badly or implausibly: ``SPECULAR`` (the smooth local
     skin colour at no less than 80 % of the local shading plus a white component of at least 10 %
-    of the pixel), ``NOT_SKIN`` (outside ``skin_box`` by more than two standard errors, pinned at
-    the box's top by a colour beyond it, or a shading 3x off the smooth field of its surroundings:
+    of the pixel), ``NOT_SKIN`` (outside ``skin_box`` by more than two standard errors, at most
+    ``_EDGE_MARGIN``, where the colour identifies the value; pinned at the box's top by a colour
+    beyond it, or a shading 3x off the smooth field of its surroundings:
     hair, brows, eyes).
     Their maps are zeroed: a value no skin has is never presented as skin."""
 
@@ -404,9 +410,11 @@ def _classify(rgb, gains, maps, field, model):
         # than _EXACT_DE: a skin at the box's top fits exactly). Only a value the colour identifies
         # counts: one it does not (haemoglobin under heavy melanin: a standard error larger than the
         # value, or than a quarter of the box) is skin of unknown C_h, wherever the solver left it.
-        identified = maps[f"{name}_se"] < np.minimum(_IDENTIFIED * top, value)
+        se = maps[f"{name}_se"]
+        identified = se < np.minimum(_IDENTIFIED * top, value)
         pinned = (value >= 0.999 * top) & (maps["residual_dE2000"] > _EXACT_DE)
-        implausible |= identified & (pinned | (value < low) | (value > high))
+        margin = np.exp(np.minimum(2.0 * se / np.maximum(value, 1e-12), _EDGE_MARGIN))
+        implausible |= identified & (pinned | (value * margin < low) | (value > high * margin))
     # another surface than the skin around it (hair, brows, eyes): a shading far from the field
     implausible = implausible | (np.abs(np.log(np.maximum(maps["shading"], 1e-12) / field)) > _OTHER_SURFACE)
     status[(status <= PixelStatus.OUT_OF_MODEL) & implausible] = PixelStatus.NOT_SKIN
