@@ -24,7 +24,7 @@ from ..colorimetry import (
     colour_table,
     render_maps,
 )
-from ..io import read_linear_rgb, read_mask
+from ..io import read_image, read_mask
 from ..model import SkinModel, model_with_options, resolve_model
 from ._image_calibration import calibrate
 from ._pixels import PixelStatus, fit_pixels, screen_pixels
@@ -60,6 +60,7 @@ class ImageFit:
     white_balance: tuple[float, float, float] = (1.0, 1.0, 1.0)
     model: SkinModel | None = None
     colour_chart: object | None = None  # the ChartCalibration the image was corrected with
+    input_encoding: str = "linear sRGB array"  # how the input was decoded (``skinfit.io.read_image``)
 
     @property
     def model_name(self) -> str:
@@ -104,6 +105,7 @@ class ImageFit:
             "white_balance": list(self.white_balance),
             **({"colour_chart_matrix": self.colour_chart.matrix.tolist(),
                 "colour_chart_median_dE2000": float(np.median(self.colour_chart.delta_e2000))} if self.colour_chart is not None else {}),
+            "input_encoding": self.input_encoding,
             "model": self.model_name,
             "seconds": self.seconds,
         }
@@ -173,9 +175,9 @@ def fit_image(
     model = model_with_options(model, method=method)
     if regularisation not in REGULARISATION:
         raise SkinfitInputError(f"regularisation must be one of {', '.join(REGULARISATION)}, got {regularisation!r}")
-    alpha = None
+    alpha, encoding = None, "linear sRGB array"
     if _is_path(image):
-        rgb, alpha = read_linear_rgb(image, input_space)
+        rgb, alpha, encoding = read_image(image, input_space)
         rgb = rgb.astype(np.float32)  # a file holds no more (float, half or integer): half the memory of a 4096^2 image
     else:
         rgb = np.asarray(image, dtype=float)
@@ -235,7 +237,7 @@ def fit_image(
     if chart is not None:
         fitted = chart.invert(fitted).astype(fitted.dtype)
     return ImageFit(**maps, fitted_linear_rgb=fitted, seconds=time.perf_counter() - start, white_balance=tuple(float(g) for g in gains),
-                    model=model, colour_chart=chart)
+                    model=model, colour_chart=chart, input_encoding=encoding)
 
 
 def population_blend(model: SkinModel) -> float:

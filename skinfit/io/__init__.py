@@ -4,6 +4,7 @@ the ISSA archive layout, CSV tables). Imports ``skinfit.colorimetry`` for the sR
 
 from ._images import (
     read_exr_channels,
+    read_image,
     read_linear_rgb,
     read_mask,
     to_linear_srgb,
@@ -19,6 +20,7 @@ __all__ = [
     "NistSpectra",
     "read_exr_channels",
     "read_issa",
+    "read_image",
     "read_linear_rgb",
     "read_mask",
     "read_nist",

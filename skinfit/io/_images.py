@@ -1,24 +1,32 @@
 """Image input and output through OpenImageIO: linear sRGB in, named-channel EXR and PNG out.
 
-Encodings. Integer files (8/16-bit PNG, JPEG, TIFF) are taken as sRGB-encoded and decoded with the
-sRGB transfer function unless their metadata says linear; half and float data (EXR, float TIFF) are
-taken as linear. ``input_space`` overrides this: ``"srgb"``, ``"linear"`` (linear sRGB primaries),
-or the name of any colour-science RGB colourspace (``"Display P3"``, ``"Adobe RGB (1998)"``,
-``"ACEScg"``, ...), decoded with that space's transfer function and converted to linear sRGB
-(Bradford adaptation where the white points differ). Channels are found by name (R, G, B and
+Encodings. A file with an embedded ICC profile of matrix/TRC type (phones write Display P3,
+cameras Adobe RGB) is converted through it to linear sRGB in floating point (``_icc``). Other
+integer files (8/16-bit PNG, JPEG, TIFF) are taken as sRGB-encoded and decoded with the sRGB
+transfer function unless their metadata says linear; half and float data (EXR, float TIFF) are
+taken as linear. ``input_space`` overrides all of this: ``"srgb"``, ``"linear"`` (linear sRGB
+primaries), or the name of any colour-science RGB colourspace (``"Display P3"``, ``"Adobe RGB
+(1998)"``, ``"ACEScg"``, ...), decoded with that space's transfer function and converted to linear
+sRGB (Bradford adaptation where the white points differ). Channels are found by name (R, G, B and
 optionally A), not by position.
+
+Files as cameras write them: the EXIF orientation is applied (pixels come out as the photo is
+shown), and a file the decoder reports damaged (a truncated JPEG, whose missing part libjpeg
+fills with grey; a PNG cut short) is refused with a one-line error rather than fitted.
 """
 
 from __future__ import annotations
 
 import os
 import tempfile
+import warnings
 from pathlib import Path
 
 import numpy as np
 
 from .._validate import SkinfitInputError
 from ..colorimetry import srgb_decode
+from ._icc import UnsupportedProfile, parse_icc
 
 
 def _oiio():
@@ -29,6 +37,13 @@ def _oiio():
 
 def read_linear_rgb(path: str | os.PathLike, input_space: str | None = None) -> tuple[np.ndarray, np.ndarray | None]:
     """Read an image as linear sRGB, (h, w, 3) float64, and its alpha (h, w) or None."""
+    rgb, alpha, _ = read_image(path, input_space)
+    return rgb, alpha
+
+
+def read_image(path: str | os.PathLike, input_space: str | None = None) -> tuple[np.ndarray, np.ndarray | None, str]:
+    """``read_linear_rgb`` and a description of the encoding it decoded (``"sRGB"``, ``"linear"``,
+    ``"ICC profile 'Display P3'"``, or the ``input_space`` given)."""
     path = Path(path)
     spec, pixels = _read_pixels(path)
     names = [name.upper() for name in spec.channelnames]
@@ -47,8 +62,15 @@ def read_linear_rgb(path: str | os.PathLike, input_space: str | None = None) -> 
     rgb = pixels[..., [index["R"], index["G"], index["B"]]]
     alpha = pixels[..., index["A"]] if "A" in index else None
 
+    if input_space is None and spec.getattribute("ICCProfile") is not None and spec.format.basetype not in _float_types():
+        try:
+            profile = parse_icc(bytes(np.asarray(spec.getattribute("ICCProfile"), dtype=np.uint8)))
+        except UnsupportedProfile as error:
+            warnings.warn(f"{path.name}: {error}; its pixels are taken as sRGB (give input_space to say otherwise)", stacklevel=2)
+        else:
+            return profile.to_linear_srgb(rgb), alpha, f"ICC profile {profile.description!r}"
     space = input_space or _default_space(spec)
-    return to_linear_srgb(rgb, space), alpha
+    return to_linear_srgb(rgb, space), alpha, space
 
 
 def read_mask(path: str | os.PathLike) -> np.ndarray:
@@ -70,7 +92,12 @@ def _default_space(spec) -> str:
         return "linear"
     if "srgb" in declared:
         return "srgb"
-    return "linear" if spec.format.basetype in (_oiio().HALF, _oiio().FLOAT, _oiio().DOUBLE) else "srgb"
+    return "linear" if spec.format.basetype in _float_types() else "srgb"
+
+
+def _float_types():
+    oiio = _oiio()
+    return (oiio.HALF, oiio.FLOAT, oiio.DOUBLE)
 
 
 def to_linear_srgb(rgb: np.ndarray, space: str) -> np.ndarray:
@@ -118,23 +145,43 @@ def read_exr_channels(path: str | os.PathLike) -> tuple[dict[str, np.ndarray], d
 
 
 def _read_pixels(path: Path):
-    """(spec, pixels (h, w, channels) float64) of the first subimage; unreadable files raise
-    ``SkinfitInputError``."""
+    """(spec, pixels (h, w, channels) float64, as displayed: EXIF orientation applied) of the
+    first subimage; unreadable, truncated or corrupt files raise ``SkinfitInputError``."""
     oiio = _oiio()
+    if not path.is_file():
+        raise SkinfitInputError(f"cannot read image {path}: no such file")
     image = oiio.ImageInput.open(str(path))
     if image is None:
-        raise SkinfitInputError(f"cannot read image {path}: {oiio.geterror() or 'unknown format'}")
+        raise SkinfitInputError(f"cannot read image {path}: {_first_line(oiio.geterror()) or 'unknown format'}")
     try:
         spec = image.spec()
         pixels = image.read_image(0, 0, 0, spec.nchannels, oiio.FLOAT)
-        if pixels is None:
-            raise SkinfitInputError(f"cannot read pixels of {path}: {image.geterror()}")
+        # a decoder that met damage says so (libjpeg fills a truncated JPEG with grey and goes on)
+        damaged = image.has_error() if callable(image.has_error) else image.has_error
+        if pixels is None or damaged:
+            raise SkinfitInputError(f"cannot read image {path}: {_first_line(image.geterror()) or 'no pixels'} (truncated or corrupt file)")
     finally:
         image.close()
     pixels = np.asarray(pixels, dtype=np.float64).reshape(spec.height, spec.width, spec.nchannels)
     if pixels.size == 0:
         raise SkinfitInputError(f"{path} is empty")
-    return spec, pixels
+    return spec, orient(pixels, spec.get_int_attribute("Orientation", 1))
+
+
+def _first_line(message: str) -> str:
+    return message.strip().splitlines()[0] if message and message.strip() else ""
+
+
+def orient(pixels: np.ndarray, orientation: int) -> np.ndarray:
+    """Stored pixels (h, w, ...) as displayed under EXIF orientation 1-8 (TIFF/EXIF tag 274: 2
+    mirrored, 3 rotated 180, 4 flipped, 5 transposed, 6 rotated 90 clockwise, 7 transversed, 8
+    rotated 90 anticlockwise); other values leave them as they are."""
+    transpose = lambda a: np.swapaxes(a, 0, 1)  # noqa: E731
+    ops = {
+        2: lambda a: a[:, ::-1], 3: lambda a: a[::-1, ::-1], 4: lambda a: a[::-1],
+        5: transpose, 6: lambda a: transpose(a)[:, ::-1], 7: lambda a: transpose(a)[::-1, ::-1], 8: lambda a: transpose(a)[::-1],
+    }
+    return np.ascontiguousarray(ops[orientation](pixels)) if orientation in ops else pixels
 
 
 def write_png(path: str | os.PathLike, encoded_rgb: np.ndarray, bits: int = 8) -> None:
