@@ -1,4 +1,4 @@
-"""Make ``data/eileen_collins_skin_mask.png``, the skin mask of the demo photo.
+"""Make ``tests/data/eileen_collins_skin_mask.png``, the skin mask of the demo photo.
 
 Independent of the skin model (so that judging the fit on it is not circular): a standard skin-colour
 rule in YCbCr (ITU-R BT.601; Cr 135-180, Cb 85-135, luma above 80 of 255) inside the face and neck
@@ -15,8 +15,8 @@ from pathlib import Path
 import numpy as np
 
 ROOT = Path(__file__).resolve().parents[1]
-PHOTO = ROOT / "data" / "eileen_collins_face.png"
-MASK = ROOT / "data" / "eileen_collins_skin_mask.png"
+PHOTO = ROOT / "tests" / "data" / "eileen_collins_face.png"
+MASK = ROOT / "tests" / "data" / "eileen_collins_skin_mask.png"
 
 #: (centre x, centre y, radius x, radius y) in pixels of the 160 x 192 photo.
 FACE = (80, 112, 44, 60)

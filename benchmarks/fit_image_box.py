@@ -99,7 +99,7 @@ def run_model(name: str, size: int) -> dict:
     rgb = colour_science_render(melanin, haemoglobin, shading, blend, model)
     rows = {}
     for label, options in (("priors_off", {"prior": False}), ("default_priors", {})):
-        fit = skinfit.fit_image(rgb, white_balance="none", melanin_blend=blend, model=model, progress=False, **options)
+        fit = skinfit.fit_image(rgb, white_balance="none", melanin_blend=blend, model=model, segmentation="none", progress=False, **options)
         rows[label] = {"statuses": statuses(fit), "fitted_fraction": float(np.mean(fit.status == skinfit.PixelStatus.SUCCESS)),
                        "relative_error": relative_errors(fit, truth), "seconds": fit.seconds}
         bad = fit.status != skinfit.PixelStatus.SUCCESS

@@ -5,7 +5,7 @@ Run: python -m benchmarks.fit_photos [--scipy-n 100] [--memory-size 4096] [--out
 Inputs (each with its mask):
 
 - the demo photo (NASA portrait, 8-bit sRGB, warm studio light) with the shipped skin mask
-  ``data/eileen_collins_skin_mask.png`` (made without the skin model: ``benchmarks.demo_skin_mask``);
+  ``tests/data/eileen_collins_skin_mask.png`` (made without the skin model: ``benchmarks.demo_skin_mask``);
 - a real cross-polarised face albedo capture (BioSkin test image 2, MIT) downscaled 4x, shipped in
   ``tests/data/``; and, where ``../shared/data/face-albedo/`` exists, the 0.4 MP original. Its mask is
   a head mask: it holds hair, brows, closed eyes, lips and some background as well as skin.
@@ -44,7 +44,7 @@ from skinfit.io import read_linear_rgb, read_mask
 
 ROOT = Path(__file__).resolve().parents[1]
 INPUTS = {
-    "demo photo (160x192, skin mask)": (ROOT / "data/eileen_collins_face.png", ROOT / "data/eileen_collins_skin_mask.png"),
+    "demo photo (160x192, skin mask)": (ROOT / "tests/data/eileen_collins_face.png", ROOT / "tests/data/eileen_collins_skin_mask.png"),
     "albedo capture, 1/4 (125x199, head mask)": (ROOT / "tests/data/face2_albedo_quarter.png", ROOT / "tests/data/face2_mask_quarter.png"),
     "albedo capture (501x798, head mask)": (ROOT.parent / "shared/data/face-albedo/face2_albedo.png",
                                             ROOT.parent / "shared/data/face-albedo/face2_mask.png"),

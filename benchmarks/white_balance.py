@@ -49,7 +49,7 @@ def rendering(size: int, blend: float) -> dict:
     rgb = render_maps(melanin, haemoglobin, shading, model=skinfit.SkinModel.default(), melanin_blend=blend)
     fitted = {}
     for name, white_balance in (("auto", "auto"), ("none", "none")):
-        fit = fit_image(rgb, white_balance=white_balance, melanin_blend=blend, progress=False)
+        fit = fit_image(rgb, white_balance=white_balance, melanin_blend=blend, segmentation="none", progress=False)
         ok = fit.status == PixelStatus.SUCCESS
         fitted[name] = {"white_balance": list(fit.white_balance), "success_fraction": float(ok.mean()),
                         "melanin_median": float(np.median(fit.melanin[ok])), "haemoglobin_median": float(np.median(fit.haemoglobin[ok]))}

@@ -1,7 +1,7 @@
 """The package's import graph (an import-linter style "layers" contract, checked on the source):
 
 - the stages are layers, each importing only the ones below it:
-  package-root helpers < model < colorimetry < io < planning < export < fit < cli;
+  package-root helpers < model < colorimetry < io < segmentation < planning < export < fit < cli;
 - no import cycle between modules (counting imports inside functions, which would hide one);
 - no import of the package inside a function;
 - no import of another subpackage's private module or private name (``from ..model._params``,
@@ -15,7 +15,7 @@ from pathlib import Path
 import pytest
 
 PACKAGE = Path(__file__).resolve().parent.parent / "skinfit"
-LAYERS = ("model", "colorimetry", "io", "planning", "export", "fit", "cli")
+LAYERS = ("model", "colorimetry", "io", "segmentation", "planning", "export", "fit", "cli")
 # modules of the package root above every stage: the namespace, its deprecation shims, internals
 TOP = {"__init__", "__main__", "internal", "_deprecated"}
 

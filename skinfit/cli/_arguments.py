@@ -94,15 +94,15 @@ def model_options_from(args) -> dict:
 
 
 def parse_white_balance(text: str):
-    """--white-balance: none, auto or R,G,B gains."""
-    if text in ("none", "auto"):
+    """--white-balance: none, auto, chart or R,G,B gains."""
+    if text in ("none", "auto", "chart"):
         return text
     try:
         gains = tuple(float(v) for v in text.split(","))
     except ValueError:
         gains = ()
     if len(gains) != 3 or not all(g > 0 for g in gains):
-        raise SkinfitInputError(f"--white-balance takes none, auto or three positive gains R,G,B; got {text!r}")
+        raise SkinfitInputError(f"--white-balance takes none, auto, chart or three positive gains R,G,B; got {text!r}")
     return gains
 
 

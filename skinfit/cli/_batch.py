@@ -1,7 +1,7 @@
 """One fitted image written to a folder: the job of ``skinfit fit-image``, a batch and a Dask worker.
 
 ``fit_image_to_folder`` fits one image and writes ``<stem>_reconstructed.png``, ``<stem>_dE2000.png``,
-``<stem>_skin_mask.png`` and, last and atomically (its presence marks the image done, so an
+``<stem>_skin_mask.png``, ``<stem>_regions.png`` (the face regions over the photo) and, last and atomically (its presence marks the image done, so an
 interrupted batch keeps every finished image and a rerun skips them), ``<stem>_maps.exr``.
 """
 
@@ -14,33 +14,58 @@ import numpy as np
 
 from ..colorimetry import srgb_encode
 from ..fit import fit_image
-from ..io import write_exr, write_png
+from ..io import read_linear_rgb, write_exr, write_png
+from ._plots import region_overlay
 
 
 def fit_image_to_folder(path, out: Path, options: dict) -> str:
     """Fit one image and write its outputs into ``out``; returns the summary line."""
     stem = Path(path).stem
     fit = fit_image(path, **options)
-    maps_path = write_fit(fit, out, f"{stem}_", str(path), options.get("illuminant", "D65"))
+    photo = read_linear_rgb(path, options.get("input_space"))[0] if fit.region is not None else None  # under the region overlay
+    maps_path = write_fit(fit, out, f"{stem}_", str(path), options.get("illuminant", "D65"), photo)
     summary = fit.summary()
     return (
-        f"{path}: {summary['fitted']} of {summary['pixels']} pixels fitted ({100 * summary['fitted_fraction']:.1f} %), "
+        f"{path}: {_skin_text(fit)}, {summary['fitted']} of {summary['pixels']} pixels fitted ({100 * summary['fitted_fraction']:.1f} %), "
         f"CIEDE2000 median {summary['median_dE2000']:.3g}, 95th percentile {summary['p95_dE2000']:.3g}, "
-        f"blend {summary['melanin_blend']:.3g}, white balance {' '.join(f'{g:.3f}' for g in fit.white_balance)}, "
+        f"blend {summary['melanin_blend']:.3g}, white balance {white_balance_text(fit)}, "
         f"model {summary['model']}, {summary['seconds']:.1f} s -> {maps_path}"
     )
 
 
-def write_fit(fit, out: Path, prefix: str, source: str, illuminant: str) -> Path:
-    """Write ``<prefix>reconstructed.png``, ``<prefix>dE2000.png`` and, last (atomically, so that its
-    presence marks the image done), ``<prefix>maps.exr``; returns the maps path."""
+def _skin_text(fit) -> str:
+    if fit.skin_from == "faces":
+        return f"{fit.faces} face{'s' if fit.faces != 1 else ''}"
+    return "no face found" if fit.faces == 0 else f"skin from the {fit.skin_from}"
+
+
+def white_balance_text(fit) -> str:
+    """The gains, with their relative standard errors where fitted: '0.780 1.000 1.070 (+-4 %, 0 %, 3 %)'."""
+    text = " ".join(f"{g:.3f}" for g in fit.white_balance)
+    if fit.white_balance_sd:
+        text += " (+-" + ", ".join(f"{100 * s:.0f} %" for s in fit.white_balance_sd) + ")"
+    return text
+
+
+def write_fit(fit, out: Path, prefix: str, source: str, illuminant: str, photo: np.ndarray | None = None) -> Path:
+    """Write ``<prefix>reconstructed.png``, ``<prefix>dE2000.png``, ``<prefix>skin_mask.png``,
+    ``<prefix>regions.png`` (where faces were segmented; over ``photo``, linear sRGB, if given)
+    and, last (atomically, so that its presence marks the image done), ``<prefix>maps.exr``;
+    returns the maps path."""
+    if photo is not None:
+        photo = np.asarray(photo, np.float32)
     write_png(out / f"{prefix}reconstructed.png", encoded_srgb(fit.fitted_linear_rgb))
     write_png(out / f"{prefix}dE2000.png", delta_e_image(fit.residual_dE2000))
     write_png(out / f"{prefix}skin_mask.png", fit.skin_mask[..., None])  # one channel, 0 or 255
+    if fit.region is not None:
+        write_png(out / f"{prefix}regions.png", region_overlay(encoded_srgb(fit.fitted_linear_rgb if photo is None else photo), fit.region))
     attributes = {
         "skinfit:source": source,
         "skinfit:illuminant": illuminant,
         "skinfit:white_balance": " ".join(f"{g:.9g}" for g in fit.white_balance),
+        **({"skinfit:white_balance_sd": " ".join(f"{g:.4g}" for g in fit.white_balance_sd)} if fit.white_balance_sd else {}),
+        "skinfit:input_encoding": fit.input_encoding,
+        "skinfit:skin_from": fit.skin_from,
         "skinfit:model": fit.model_name,
         "skinfit:summary": json.dumps(fit.summary()),
     }

@@ -41,13 +41,12 @@ from ._arguments import (
     parse_white_balance,
     read_input_spectra,
 )
-from ._batch import encoded_srgb, fit_image_to_folder, write_fit
+from ._batch import encoded_srgb, fit_image_to_folder, white_balance_text, write_fit
 from ._dask import fit_images_on_cluster
 from ._plots import plot_fits, plot_image_fit, plot_profiles, plot_spectra
 
 #: The bundled photo (package skinfit.data, folder data/ of the repository).
-DEMO_PHOTO = "eileen_collins_face.png"
-DEMO_MASK = "eileen_collins_skin_mask.png"  # made by benchmarks/demo_skin_mask.py
+DEMO_PHOTO = "astronaut_eileen_collins.png"
 
 #: Default wavelengths of profile exports, and those of a Mitsuba spectral export (nm).
 PROFILE_WAVELENGTHS = "400:700:5"
@@ -123,36 +122,36 @@ def cmd_textures(args) -> int:
 
 
 def cmd_demo(args) -> int:
-    """The main job on the bundled photo: parameter maps, reconstruction, a blush edit, a figure."""
-
-
+    """The main job on the bundled photo: faces found, parameter maps, reconstruction, a blush
+    edit, a figure."""
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     model = model_from(args)
-    print(f"skinfit demo: fitting {DEMO_PHOTO} (NASA portrait of Eileen Collins, public domain)")
+    print(f"skinfit demo: fitting {DEMO_PHOTO} (NASA portrait of Eileen Collins, 512 x 512, public domain)")
     print(f"  skin model: {model.description}")
     print("  camera model: linear sRGB = white balance x shading x skin reflectance through CIE 1931 / D65;")
-    print("  white balance and melanin blend once for the image, MAP melanin, haemoglobin and shading per pixel")
-    print(f"  under the population prior, light edge-preserving regularisation, on the shipped skin mask {DEMO_MASK}")
-    with as_file(files("skinfit.data") / DEMO_PHOTO) as photo, as_file(files("skinfit.data") / DEMO_MASK) as mask_path:
+    print("  the skin of the faces found by the shipped face models (detector, face mesh, the face's skin colour);")
+    print("  white balance once for the image from that skin, MAP melanin, haemoglobin and shading per pixel")
+    print("  under the population prior, light edge-preserving regularisation")
+    with as_file(files("skinfit.data") / DEMO_PHOTO) as photo:
+        fit = fit_image(photo, model=model, progress=not args.quiet)
         linear, _ = read_linear_rgb(photo)
-        mask = read_mask(mask_path) > 0
-    fit = fit_image(linear, mask=mask, model=model, progress=not args.quiet)
     summary = fit.summary()
-    write_fit(fit, out, "", DEMO_PHOTO, "D65")
+    write_fit(fit, out, "", DEMO_PHOTO, "D65", linear)
     # the edit on the skin, the photo elsewhere
     blush = encoded_srgb(np.where(fit.skin_mask[..., None], fit.render(scale_haemoglobin=2.0), linear))
     write_png(out / "blush.png", blush)
     plot_image_fit(encoded_srgb(linear), fit, blush, out / "maps.png", "blush: haemoglobin x 2")
-    skin = fit.status[mask] == 0
-    delta_e = fit.residual_dE2000[mask]
-    print(
-        f"  {int(skin.sum())} of {int(mask.sum())} skin-mask pixels fitted ({100 * skin.mean():.1f} %; the rest: see the status map), "
-        f"CIEDE2000 over the mask median {np.median(delta_e):.2g}, 95th percentile {np.percentile(delta_e, 95):.2g}; "
-        f"melanin median {np.median(fit.melanin[mask][skin]):.3f}, haemoglobin median {np.median(fit.haemoglobin[mask][skin]):.4f}"
-    )
-    print(f"  melanin blend {summary['melanin_blend']:.3g}, white balance {' '.join(f'{g:.3f}' for g in fit.white_balance)}, {summary['seconds']:.1f} s")
-    print(f"wrote {out}/: maps.exr ({', '.join(fit.maps())}), maps.png, reconstructed.png, dE2000.png, skin_mask.png, blush.png")
+    region = fit.region if fit.region is not None else np.zeros(fit.status.shape, np.uint8)
+    face_skin = region == 1
+    skin = fit.status[face_skin] == 0
+    delta_e = fit.residual_dE2000[face_skin]
+    print(f"  {fit.faces or 0} face{'s' if fit.faces != 1 else ''} found ({fit.skin_from} chose the pixels fitted): "
+          f"{int(face_skin.sum())} skin pixels, {int(skin.sum())} fitted ({100 * skin.mean():.1f} %; the rest: see the status map)")
+    print(f"  CIEDE2000 over the skin median {np.median(delta_e):.2g}, 95th percentile {np.percentile(delta_e, 95):.2g}; "
+          f"melanin median {np.median(fit.melanin[face_skin][skin]):.3f}, haemoglobin median {np.median(fit.haemoglobin[face_skin][skin]):.4f}")
+    print(f"  melanin blend {summary['melanin_blend']:.3g}, white balance {white_balance_text(fit)}, {summary['seconds']:.1f} s")
+    print(f"wrote {out}/: maps.exr ({', '.join(fit.maps())}), maps.png, regions.png, reconstructed.png, dE2000.png, skin_mask.png, blush.png")
     return 0
 
 
@@ -279,7 +278,7 @@ def cmd_fit_image(args) -> int:
     white_balance = parse_white_balance(args.white_balance)
     options = dict(
         melanin_blend=args.melanin_blend, fit_blend=args.fit_blend, white_balance=white_balance, input_space=args.input_space,
-        mask=args.mask, illuminant=args.illuminant, max_delta_e=args.max_delta_e, exact_steps=args.exact_steps, method=args.method,
+        mask=args.mask, segmentation=args.segmentation, illuminant=args.illuminant, max_delta_e=args.max_delta_e, exact_steps=args.exact_steps, method=args.method,
         model=model_from(args), progress=False if args.quiet else None, regularisation=args.regularisation, colour_chart=args.colour_chart,
     )
     if args.no_prior:

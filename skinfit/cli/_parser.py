@@ -99,8 +99,12 @@ def build_parser() -> argparse.ArgumentParser:
                        help="beta_m for the whole image (default: the model's population mean, 0.42 calibrated, 0.7 DJ2006)")
     image.add_argument("--fit-blend", action="store_true", help="fit beta_m once for each image instead")
     image.add_argument("--white-balance", default="auto",
-                       help="auto (default: camera gains fitted once per image from its skin pixels), none (inputs known to be "
-                            "calibrated linear sRGB / sRGB, D65 white) or R,G,B gains")
+                       help="auto (default: camera gains fitted once per image from its skin pixels, within a camera prior "
+                            "of 15 %% per channel), none (inputs known to be calibrated linear sRGB / sRGB, D65 white), chart "
+                            "(from a ColorChecker in the frame, as --colour-chart) or R,G,B gains")
+    image.add_argument("--segmentation", choices=("faces", "none"), default="faces",
+                       help="faces (default: fit the skin of the faces found by the shipped face models; where none is found, "
+                            "every pixel) or none (every pixel; the skin model's gamut decides what is skin); --mask wins")
     image.add_argument("--regularisation", choices=("off", "light", "strong"), default="light",
                        help="edge-preserving spatial prior on melanin and haemoglobin (default light)")
     image.add_argument("--colour-chart", action="store_true",
@@ -114,10 +118,11 @@ def build_parser() -> argparse.ArgumentParser:
                             "(the direct solve: its colour table takes minutes on a laptop CPU)")
     image.add_argument("--dask", metavar="ADDRESS", default=None, help="run the images as tasks on this Dask scheduler")
     image.add_argument("--quiet", action="store_true", help="no progress bar")
-    image.add_argument("--input-space", default=None, help="srgb, linear or a colour-science RGB colourspace name")
+    image.add_argument("--input-space", default=None,
+                       help="srgb, linear or a colour-science RGB colourspace name (default: the file's ICC profile, else its type)")
     image.add_argument("--mask", default=None,
                        help="skin mask image (any channel count and bit depth: alpha, the only channel, or the largest): pixels where "
-                            "it is 0 are not fitted; without one, skin_mask.png is derived from the fit")
+                            "it is 0 are not fitted; it wins over --segmentation")
     image.add_argument("--illuminant", default="D65", help="illuminant of the camera model (default D65)")
     image.add_argument("--overwrite", action="store_true", help="refit images whose maps already exist")
     image.set_defaults(run=cmd_fit_image)

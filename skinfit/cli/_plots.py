@@ -85,8 +85,30 @@ def plot_fits(wavelengths_nm, measured, fitted, names, rms, path: str | Path, pa
     plt.close(fig)
 
 
+#: Colours of the region overlay (``FaceRegion`` order): background kept, skin green, eyes magenta,
+#: brows orange, lips red, mouth cyan, nostrils yellow, other blue.
+REGION_COLOURS = np.array([[0, 0, 0], [0.2, 0.85, 0.2], [0.9, 0.2, 0.9], [1.0, 0.6, 0.1], [0.95, 0.1, 0.1],
+                           [0.1, 0.9, 0.9], [1.0, 1.0, 0.1], [0.2, 0.3, 1.0]], np.float32)
+
+
+def region_overlay(encoded: np.ndarray, region: np.ndarray, opacity: float = 0.45) -> np.ndarray:
+    """The photo (sRGB-encoded) with each face region tinted, the background dimmed."""
+    colour = REGION_COLOURS[np.minimum(region, len(REGION_COLOURS) - 1)]
+    tinted = (1 - opacity) * encoded + opacity * colour
+    return np.where(region[..., None] > 0, tinted, 0.6 * encoded).astype(np.float32)
+
+
+def _faces_window(region: np.ndarray, margin: float = 0.15) -> tuple[slice, slice]:
+    """Rows and columns around every face's regions, ``margin`` of their size beyond."""
+    rows, cols = np.nonzero(region > 0)
+    if rows.size == 0:
+        return slice(None), slice(None)
+    pad_r, pad_c = int(margin * (rows.max() - rows.min() + 1)), int(margin * (cols.max() - cols.min() + 1))
+    return (slice(max(0, rows.min() - pad_r), rows.max() + pad_r + 1), slice(max(0, cols.min() - pad_c), cols.max() + pad_c + 1))
+
+
 def plot_image_fit(photo_srgb, fit, edited_srgb, path: str | Path, edit_label: str = "edit"):
-    """An image fit at a glance: the photo, its reconstruction, the melanin, haemoglobin and
+    """An image fit at a glance: the photo, the face regions (where segmented), its reconstruction, the melanin, haemoglobin and
     shading maps, the CIEDE2000 and status maps, and an edit re-rendered. ``fit`` is an
     ``ImageFit``; the sRGB images are encoded (h, w, 3) in [0, 1]."""
 
@@ -96,8 +118,10 @@ def plot_image_fit(photo_srgb, fit, edited_srgb, path: str | Path, edit_label: s
     masked = lambda a: np.ma.masked_where(~skin, a)  # noqa: E731
     # colour ranges from the skin's values, so that one stray pixel cannot flatten a map
     upper = lambda a: float(np.percentile(a[skin], 99.5)) if skin.any() else 1.0  # noqa: E731
-    panels = [
-        ("photo", photo_srgb, {}),
+    panels = [("photo", photo_srgb, {})]
+    if fit.region is not None:
+        panels.append((f"regions ({fit.faces} face{'s' if fit.faces != 1 else ''})", region_overlay(photo_srgb, fit.region), {}))
+    panels += [
         ("reconstruction", np.clip(np.asarray(srgb_encode(np.clip(fit.fitted_linear_rgb, 0, 1))), 0, 1), {}),
         ("melanin C_m", masked(fit.melanin), {"cmap": "copper_r", "vmin": 0, "vmax": upper(fit.melanin)}),
         ("haemoglobin C_h", masked(fit.haemoglobin), {"cmap": "Reds", "vmin": 0, "vmax": upper(fit.haemoglobin)}),
@@ -117,8 +141,10 @@ def plot_image_fit(photo_srgb, fit, edited_srgb, path: str | Path, edit_label: s
     fig, axes = plt.subplots(2, cols, figsize=(3.3 * cols, 7.2), squeeze=False)
     for ax in axes.ravel()[len(panels):]:
         ax.axis("off")
+    # the faces fill a small part of a portrait: every panel but the photo shows the faces' window
+    window = _faces_window(fit.region) if fit.region is not None else (slice(None), slice(None))
     for ax, (title, image, style) in zip(axes.ravel(), panels):
-        shown = ax.imshow(image, **style)
+        shown = ax.imshow(image if title == "photo" else image[window], **style)
         if image.ndim == 2 and title != "status":
             fig.colorbar(shown, ax=ax, fraction=0.046, pad=0.03)
         ax.set_title(title)

@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import dataclasses
 import time
+import warnings
 
 import numpy as np
 
@@ -23,9 +24,11 @@ from ..colorimetry import (
     chart_calibration,
     colour_table,
     render_maps,
+    srgb_encode,
 )
 from ..io import read_image, read_mask
 from ..model import SkinModel, model_with_options, resolve_model
+from ..segmentation import FaceSegmentation, SegmentationUnavailable, segment_faces
 from ._image_calibration import calibrate
 from ._pixels import PixelStatus, fit_pixels, screen_pixels
 from ._spatial import neighbourhood_median, smooth_field
@@ -61,6 +64,10 @@ class ImageFit:
     model: SkinModel | None = None
     colour_chart: object | None = None  # the ChartCalibration the image was corrected with
     input_encoding: str = "linear sRGB array"  # how the input was decoded (``skinfit.io.read_image``)
+    white_balance_sd: tuple[float, float, float] | None = None  # relative standard errors of the fitted gains
+    region: np.ndarray | None = None  # (h, w) ``FaceRegion`` codes where faces were segmented
+    faces: int | None = None  # faces found (None: not looked for)
+    skin_from: str = "model gamut"  # what chose the pixels fitted: "faces", "mask" or "model gamut"
 
     @property
     def model_name(self) -> str:
@@ -72,7 +79,8 @@ class ImageFit:
         in the model's gamut, with parameters skin has, no glint."""
         return self.status == PixelStatus.SUCCESS
 
-    MAP_NAMES = ("melanin", "melanin_blend", "haemoglobin", "shading", "residual_dE2000", "status", "melanin_se", "haemoglobin_se")
+    MAP_NAMES = ("melanin", "melanin_blend", "haemoglobin", "shading", "residual_dE2000", "status", "melanin_se", "haemoglobin_se",
+                 "region")
 
     def maps(self) -> dict[str, np.ndarray]:
         return {name: getattr(self, name) for name in self.MAP_NAMES if getattr(self, name) is not None}
@@ -103,9 +111,12 @@ class ImageFit:
             # the blend of the fitted pixels (the map holds 0 where nothing was fitted)
             "melanin_blend": round(float(np.median(self.melanin_blend[fitted])), 6) if fitted.any() else float("nan"),
             "white_balance": list(self.white_balance),
+            "white_balance_sd": None if self.white_balance_sd is None else list(self.white_balance_sd),
             **({"colour_chart_matrix": self.colour_chart.matrix.tolist(),
                 "colour_chart_median_dE2000": float(np.median(self.colour_chart.delta_e2000))} if self.colour_chart is not None else {}),
             "input_encoding": self.input_encoding,
+            "skin_from": self.skin_from,
+            "faces": self.faces,
             "model": self.model_name,
             "seconds": self.seconds,
         }
@@ -124,6 +135,7 @@ def fit_image(
     white_balance: str | bool | tuple[float, float, float] = "auto",
     input_space: str | None = None,
     mask=None,
+    segmentation: str = "faces",
     use_alpha: bool = True,
     illuminant: str = DEFAULT_ILLUMINANT,
     regularisation: str = "light",
@@ -143,11 +155,20 @@ def fit_image(
             0.7 without a prior (DJ2006).
         fit_blend: fit beta_m once for the whole image instead (``skinfit.fit``).
         white_balance: ``"auto"`` (default) fits per-channel camera gains once for the image from
-            its skin pixels (``skinfit.fit``: photos and captures of unknown balance);
-            ``"none"`` for inputs known to be calibrated (albedo in linear sRGB, D65 white = 1);
-            a tuple (r, g, b) gives them. ``True``/``False`` mean ``"auto"``/``"none"``.
+            its skin pixels under a camera prior of 15 % per channel (``skinfit.fit.calibrate``:
+            photos and captures of unknown balance; the gains' standard errors go in
+            ``white_balance_sd``); ``"none"`` for inputs known to be calibrated (albedo in linear
+            sRGB, D65 white = 1); ``"chart"`` calibrates from a ColorChecker in the frame (as
+            ``colour_chart=True``); a tuple (r, g, b) gives them. ``True``/``False`` mean
+            ``"auto"``/``"none"``.
         input_space: encoding of a file (``None``: from its type and metadata).
         mask: (h, w) array or image path; pixels where it is 0 are not fitted (status MASKED).
+            A mask given wins over ``segmentation``.
+        segmentation: ``"faces"`` (default) fits the skin of the faces in the photo
+            (``skinfit.segmentation``: face detector, face mesh, the face's skin colour; eyes,
+            brows, lips, nostrils, hair, background and clothes are MASKED; the region of every
+            pixel is in ``region``); where no face is found, it warns and falls back to
+            ``"none"``: every pixel, the model's gamut and ``skin_box`` deciding what is skin.
         use_alpha: treat the file's alpha channel as a mask.
         illuminant: the illuminant of the camera model (colour-science name; D65 default).
         regularisation: ``"off"``, ``"light"`` (default) or ``"strong"``: a prior on each pixel's
@@ -191,9 +212,24 @@ def fit_image(
             mask = mask[..., 0]
         if mask.shape != rgb.shape[:2]:
             raise SkinfitInputError(f"mask has shape {mask.shape}, the image {rgb.shape[:2]}")
+    if segmentation not in ("faces", "none"):
+        raise SkinfitInputError(f"segmentation must be 'faces' or 'none', got {segmentation!r}")
+    region, faces, skin_from = None, None, "model gamut" if mask is None else "mask"
+    if mask is None and segmentation == "faces":
+        found = _segment(rgb)
+        if found is not None:
+            faces = len(found.faces)
+            if faces:
+                region, mask, skin_from = found.region, found.skin, "faces"
+            else:
+                warnings.warn("no face found in the image: fitting every pixel, the skin model's gamut deciding what is skin "
+                              "(give a mask, or segmentation='none' to silence this)", stacklevel=2)
     if use_alpha and alpha is not None:
         mask = alpha if mask is None else np.minimum(mask, alpha)
     chart = None
+    if isinstance(white_balance, str) and white_balance == "chart":
+        colour_chart = colour_chart if isinstance(colour_chart, ChartCalibration) else True
+        white_balance = "none"
     if colour_chart is not False and colour_chart is not None:
 
         chart = colour_chart if isinstance(colour_chart, ChartCalibration) else chart_calibration(rgb)
@@ -204,7 +240,7 @@ def fit_image(
         melanin_blend = population_blend(model)
     if isinstance(white_balance, bool):
         white_balance = "auto" if white_balance else "none"
-    gains = np.ones(3)
+    gains, gains_sd = np.ones(3), None
     if fit_blend or (isinstance(white_balance, str) and white_balance == "auto"):
 
         pixels = rgb.reshape(-1, 3)
@@ -217,13 +253,14 @@ def fit_image(
             illuminant=illuminant, model=model, colour_noise=options.get("colour_noise", 0.003), prior=options.get("prior"),
         )
         melanin_blend, gains = calibration.melanin_blend, np.asarray(calibration.white_balance)
+        gains_sd = calibration.white_balance_sd if white_balance == "auto" else None
     elif isinstance(white_balance, str):
         if white_balance != "none":
-            raise SkinfitInputError(f"white_balance must be 'auto', 'none' or three positive gains, got {white_balance!r}")
+            raise SkinfitInputError(f"white_balance must be 'auto', 'none', 'chart' or three positive gains, got {white_balance!r}")
     else:
         gains = np.asarray(white_balance, dtype=float)
         if gains.shape != (3,) or not np.all(gains > 0):
-            raise SkinfitInputError(f"white_balance must be 'auto', 'none' or three positive gains, got {white_balance}")
+            raise SkinfitInputError(f"white_balance must be 'auto', 'none', 'chart' or three positive gains, got {white_balance}")
     options = dict(melanin_blend=melanin_blend, illuminant=illuminant, model=model, **options)
     maps = _fit_in_bands(rgb, gains, mask, options, progress)
     if options.get("shading_reference") is None:
@@ -237,7 +274,34 @@ def fit_image(
     if chart is not None:
         fitted = chart.invert(fitted).astype(fitted.dtype)
     return ImageFit(**maps, fitted_linear_rgb=fitted, seconds=time.perf_counter() - start, white_balance=tuple(float(g) for g in gains),
-                    model=model, colour_chart=chart, input_encoding=encoding)
+                    model=model, colour_chart=chart, input_encoding=encoding, white_balance_sd=gains_sd, region=region, faces=faces,
+                    skin_from=skin_from)
+
+
+#: Long side above which faces are found on a box-downscaled copy (a face of 30 pixels there is
+#: 0.7 % of the side; the copy of a 48 MP photo would hold 0.6 GB).
+_SEGMENTATION_SIDE = 4096
+
+
+def _segment(rgb: np.ndarray) -> FaceSegmentation | None:
+    """The faces of a linear sRGB image, on its sRGB encoding (as the face models saw photos), at
+    most ``_SEGMENTATION_SIDE`` pixels on the long side; None where the runtime is missing."""
+    factor = int(np.ceil(max(rgb.shape[:2]) / _SEGMENTATION_SIDE))
+    small = rgb if factor == 1 else rgb[: rgb.shape[0] // factor * factor, : rgb.shape[1] // factor * factor].reshape(
+        rgb.shape[0] // factor, factor, rgb.shape[1] // factor, factor, 3).mean(axis=(1, 3))
+    try:
+        found = segment_faces(np.asarray(srgb_encode(np.clip(small, 0.0, 1.0).astype(np.float32))))
+    except SegmentationUnavailable as error:
+        warnings.warn(f"{error}: fitting every pixel, the skin model's gamut deciding what is skin", stacklevel=3)
+        return None
+    if factor == 1:
+        return found
+    region = np.zeros(rgb.shape[:2], np.uint8)  # nearest: each copy pixel's block, the remainder as its edge
+    rows = np.minimum(np.arange(rgb.shape[0]) // factor, found.region.shape[0] - 1)
+    cols = np.minimum(np.arange(rgb.shape[1]) // factor, found.region.shape[1] - 1)
+    region[:] = found.region[rows][:, cols]
+    faces = tuple(dataclasses.replace(f, box=f.box * factor, landmarks=f.landmarks * factor) for f in found.faces)
+    return FaceSegmentation(faces, region)
 
 
 def population_blend(model: SkinModel) -> float:
@@ -373,8 +437,9 @@ _IDENTIFIED = 0.25
 #: box. Two colour pipelines (skinfit's and colour-science's) differ by up to 0.08 at the top.
 _EXACT_DE = 0.15
 
-#: Largest |ln(value / edge)| that a fit may lie beyond the skin box as noise (two standard errors
-#: up to this): a skin on the box's edge fits up to 20 % (1.25x) beyond it; wall and cloth lie further.
+#: Largest |ln(value / edge)| that a fit which reproduces its colour (within ``_EXACT_DE``) may lie
+#: beyond the skin box (two standard errors up to this): a skin on the box's edge fits up to 20 %
+#: (1.25x) beyond it; wall and cloth lie further.
 _EDGE_MARGIN = np.log(1.5)
 
 
@@ -415,7 +480,10 @@ def _classify(rgb, gains, maps, field, model):
         se = maps[f"{name}_se"]
         identified = se < np.minimum(_IDENTIFIED * top, value)
         pinned = (value >= 0.999 * top) & (maps["residual_dE2000"] > _EXACT_DE)
-        margin = np.exp(np.minimum(2.0 * se / np.maximum(value, 1e-12), _EDGE_MARGIN))
+        # the margin only where the fit reproduces the colour (a skin on the edge fits exactly; a
+        # glint, skin plus white, fits as the lightest skin with a CIEDE2000 of 0.5)
+        exact = maps["residual_dE2000"] <= _EXACT_DE
+        margin = np.where(exact, np.exp(np.minimum(2.0 * se / np.maximum(value, 1e-12), _EDGE_MARGIN)), 1.0)
         implausible |= identified & (pinned | (value * margin < low) | (value > high * margin))
     # another surface than the skin around it (hair, brows, eyes): a shading far from the field
     implausible = implausible | (np.abs(np.log(np.maximum(maps["shading"], 1e-12) / field)) > _OTHER_SURFACE)

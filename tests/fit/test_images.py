@@ -31,7 +31,7 @@ def test_round_trip_recovers_smooth_512_maps():
     shading 1.5e-8 / 4.6e-8)."""
     melanin, haemoglobin, shading = smooth_maps(512)
     rgb = render_maps(melanin, haemoglobin, shading, model=DJ2006)
-    fit = fit_image(rgb, model=DJ2006, prior=False, white_balance="none", progress=False)
+    fit = fit_image(rgb, model=DJ2006, prior=False, white_balance="none", segmentation="none", progress=False)
     assert np.mean(fit.status == PixelStatus.SUCCESS) > 0.999
     bounds = {"melanin": (5e-8, 2e-7), "haemoglobin": (3e-7, 4e-6), "shading": (1.5e-7, 5e-7)}
     for (name, (median_bound, p99_bound)), true in zip(bounds.items(), (melanin, haemoglobin, shading)):
@@ -51,13 +51,13 @@ def test_default_model_resolves_its_fold_with_the_prior_and_the_shading_field():
     melanin, haemoglobin, shading = smooth_maps(64)
     blend = population_blend(skinfit.SkinModel.default())
     rgb = render_maps(melanin, haemoglobin, shading, melanin_blend=blend)
-    ml = fit_image(rgb, prior=False, white_balance="none", progress=False)
+    ml = fit_image(rgb, prior=False, white_balance="none", segmentation="none", progress=False)
     assert ml.model_name == skinfit.SkinModel.default().name != "dj2006"
     assert np.all(ml.melanin_blend[ml.status == 0] == np.float32(blend))
     ml_error = np.abs(ml.melanin - melanin) / melanin
     assert np.mean(ml_error[ml.status == 0] > 0.25) > 0.01  # the fold shows without the priors
 
-    fit = fit_image(rgb, white_balance="none", colour_noise=0.001, progress=False)
+    fit = fit_image(rgb, white_balance="none", colour_noise=0.001, segmentation="none", progress=False)
     ok = fit.status == PixelStatus.SUCCESS
     assert ok.mean() > 0.99
     error = np.abs(fit.melanin - melanin) / melanin
@@ -125,7 +125,8 @@ def test_cli_fits_a_png_and_renders_an_edit(tmp_path, rendered_64, capsys):
     photo = tmp_path / "face.png"
     crop = (slice(32, 56), slice(32, 64))  # moderate melanin: with heavy melanin, quantised colours are ill-posed
     write_png(photo, np.asarray(srgb_encode(np.clip(rgb[crop], 0, 1))), bits=16)
-    assert cli.main(["fit-image", str(photo), "--out", str(tmp_path / "out"), "--model", "dj2006", "--no-prior", "--white-balance", "none"]) == 0
+    assert cli.main(["fit-image", str(photo), "--out", str(tmp_path / "out"), "--model", "dj2006", "--no-prior", "--white-balance", "none",
+                     "--segmentation", "none"]) == 0
     channels, attributes = read_exr_channels(tmp_path / "out" / "face_maps.exr")
     assert set(channels) == {"melanin", "melanin_blend", "haemoglobin", "shading", "residual_dE2000", "status", "melanin_se", "haemoglobin_se"}
     fitted = channels["status"] == PixelStatus.SUCCESS
@@ -135,7 +136,7 @@ def test_cli_fits_a_png_and_renders_an_edit(tmp_path, rendered_64, capsys):
     assert (tmp_path / "out" / "face_reconstructed.png").exists() and (tmp_path / "out" / "face_dE2000.png").exists()
     assert "pixels fitted" in capsys.readouterr().out
     # a rerun skips the finished image
-    assert cli.main(["fit-image", str(photo), "--out", str(tmp_path / "out"), "--model", "dj2006"]) == 0
+    assert cli.main(["fit-image", str(photo), "--out", str(tmp_path / "out"), "--model", "dj2006", "--segmentation", "none"]) == 0
     assert "skipped" in capsys.readouterr().out
     edited = tmp_path / "blush.png"
     assert cli.main(["render-maps", str(tmp_path / "out" / "face_maps.exr"), "--out", str(edited), "--scale-haemoglobin", "1.5"]) == 0
@@ -159,9 +160,9 @@ def test_white_balance_brings_an_off_balance_image_into_the_gamut():
 
     melanin, haemoglobin, shading = smooth_maps(24)
     rgb = render_maps(melanin, haemoglobin, shading, model=DJ2006) * np.array([0.8, 1.0, 1.3])  # far off balance
-    plain = fit_image(rgb, model=DJ2006, white_balance="none", progress=False)
+    plain = fit_image(rgb, model=DJ2006, white_balance="none", segmentation="none", progress=False)
     calibration = calibrate(rgb.reshape(-1, 3), melanin_blend=0.7, model=DJ2006)
-    balanced = fit_image(rgb, white_balance=calibration.white_balance, model=DJ2006, prior=False, progress=False)
+    balanced = fit_image(rgb, white_balance=calibration.white_balance, model=DJ2006, prior=False, segmentation="none", progress=False)
     assert np.mean(plain.status == PixelStatus.SUCCESS) < 0.8
     assert np.mean(balanced.status == PixelStatus.SUCCESS) > 0.95
     assert calibration.score < 1e-3
@@ -178,7 +179,7 @@ def test_images_run_as_tasks_on_a_dask_cluster(tmp_path, rendered_64, capsys):
         write_exr(paths[-1], {"R": rgb[8 * i : 8 * i + 8, :16, 0], "G": rgb[8 * i : 8 * i + 8, :16, 1], "B": rgb[8 * i : 8 * i + 8, :16, 2]})
     with distributed.LocalCluster(n_workers=1, threads_per_worker=1, processes=False, protocol="tcp://", host="127.0.0.1", dashboard_address=None) as cluster:
         assert cli.main(["fit-image", *map(str, paths), "--out", str(tmp_path / "out"), "--dask", cluster.scheduler_address,
-                         "--model", "dj2006"]) == 0
+                         "--model", "dj2006", "--segmentation", "none"]) == 0
     out = capsys.readouterr().out
     assert out.count("pixels fitted") == 2
     for i in range(2):
@@ -219,7 +220,7 @@ def test_clipping_is_judged_on_the_camera_values_not_after_the_white_balance():
     """A red gain below 1 must not call bright (unclipped) skin saturated; a clipped pixel stays so."""
     rgb = np.tile(np.array([0.9, 0.6, 0.5]), (2, 4, 1))
     rgb[0, 0] = (1.0, 0.7, 0.6)  # clipped red
-    fit = fit_image(rgb, white_balance=(0.8, 1.0, 1.2), model=DJ2006, progress=False)
+    fit = fit_image(rgb, white_balance=(0.8, 1.0, 1.2), model=DJ2006, segmentation="none", progress=False)
     assert fit.status[0, 0] == PixelStatus.SATURATED
     assert not np.any(fit.status.ravel()[1:] == PixelStatus.SATURATED)
 
@@ -254,7 +255,7 @@ def test_glints_and_non_skin_get_their_own_status_and_no_maps():
     rgb[10:13, 10:13] += 0.25  # a glint: the skin plus white light
     rgb[30:33, 5:8] = (0.05, 0.035, 0.02)  # dark brown hair
     rgb[30:33, 30:33] = (0.1, 0.3, 0.6)  # blue cloth
-    fit = fit_image(rgb, white_balance="none", progress=False)
+    fit = fit_image(rgb, white_balance="none", segmentation="none", progress=False)
     assert np.all(fit.status[10:13, 10:13] == PixelStatus.SPECULAR)
     for patch in ((slice(30, 33), slice(5, 8)), (slice(30, 33), slice(30, 33))):
         assert np.all(np.isin(fit.status[patch], (PixelStatus.NOT_SKIN, PixelStatus.OUT_OF_MODEL)))
@@ -273,8 +274,8 @@ def test_regularisation_smooths_noise_and_keeps_edges():
     clean = render_maps(melanin, haemoglobin, np.full((48, 48), 0.8))
     noisy = clean * (1 + 0.01 * np.random.default_rng(2).standard_normal(clean.shape))
     # colour_noise says how noisy the input is: the priors weigh against it
-    off = fit_image(noisy, white_balance="none", regularisation="off", colour_noise=0.01, progress=False)
-    strong = fit_image(noisy, white_balance="none", regularisation="strong", colour_noise=0.01, progress=False)
+    off = fit_image(noisy, white_balance="none", regularisation="off", colour_noise=0.01, segmentation="none", progress=False)
+    strong = fit_image(noisy, white_balance="none", regularisation="strong", colour_noise=0.01, segmentation="none", progress=False)
     ok = (off.status == 0) & (strong.status == 0)
     assert ok.mean() > 0.9  # 1 % noise takes some colours out of the gamut
     for region in (ok & (x < 0.4), ok & (x > 0.6)):
@@ -324,7 +325,7 @@ def test_every_colour_of_the_skin_box_is_fitted_as_skin(model_name):
     box = skin_box(model)
     melanin, haemoglobin, shading = box_maps(64, box)
     rgb = colour_science_render(melanin, haemoglobin, shading, blend, model)
-    fit = fit_image(rgb, white_balance="none", melanin_blend=blend, model=model, prior=False, progress=False)
+    fit = fit_image(rgb, white_balance="none", melanin_blend=blend, model=model, prior=False, segmentation="none", progress=False)
     assert np.all((fit.status == PixelStatus.SUCCESS) | (fit.status == PixelStatus.MAX_STEPS)), np.bincount(fit.status.ravel())
     for name, true in (("melanin", melanin), ("haemoglobin", haemoglobin)):
         assert np.median(np.abs(getattr(fit, name) / true - 1.0)) <= 0.01, name
