@@ -2,7 +2,8 @@
 
 Run: python -m benchmarks.fit_photos [--scipy-n 100] [--memory-size 4096] [--out benchmarks/results]
 
-Inputs (each with its mask):
+Inputs: the demo portrait (512 x 512) and the 0.4 MP capture with nothing given (the faces are found;
+statistics over the face-skin region), and, each with its mask:
 
 - the demo photo (NASA portrait, 8-bit sRGB, warm studio light) with the shipped skin mask
   ``tests/data/eileen_collins_skin_mask.png`` (made without the skin model: ``benchmarks.demo_skin_mask``);
@@ -44,6 +45,9 @@ from skinfit.io import read_linear_rgb, read_mask
 
 ROOT = Path(__file__).resolve().parents[1]
 INPUTS = {
+    # no mask: the faces are found (skinfit.segmentation); the statistics are over the face's skin region
+    "demo portrait (512x512, faces found)": (ROOT / "data/astronaut_eileen_collins.png", None),
+    "albedo capture (501x798, faces found)": (ROOT.parent / "shared/data/face-albedo/face2_albedo.png", None),
     "demo photo (160x192, skin mask)": (ROOT / "tests/data/eileen_collins_face.png", ROOT / "tests/data/eileen_collins_skin_mask.png"),
     "albedo capture, 1/4 (125x199, head mask)": (ROOT / "tests/data/face2_albedo_quarter.png", ROOT / "tests/data/face2_mask_quarter.png"),
     "albedo capture (501x798, head mask)": (ROOT.parent / "shared/data/face-albedo/face2_albedo.png",
@@ -59,7 +63,7 @@ def read_input(name: str):
         print(f"{name}: {image} not found, skipped")
         return None
     rgb, _ = read_linear_rgb(image)
-    return rgb, read_mask(mask_path) > 0
+    return rgb, None if mask_path is None else read_mask(mask_path) > 0
 
 
 def measure(rgb, mask) -> dict:
@@ -69,6 +73,9 @@ def measure(rgb, mask) -> dict:
     start = time.perf_counter()
     fit = fit_image(rgb, mask=mask, progress=False)
     seconds = time.perf_counter() - start
+    faces = fit.faces
+    if mask is None:
+        mask = fit.region == 1 if fit.region is not None else np.ones(fit.status.shape, bool)
     skin = fit.status == PixelStatus.SUCCESS
     delta_e = fit.residual_dE2000[mask]
     return {
@@ -86,6 +93,8 @@ def measure(rgb, mask) -> dict:
         "melanin_median": float(np.median(fit.melanin[skin])),
         "haemoglobin_median": float(np.median(fit.haemoglobin[skin])),
         "white_balance": list(fit.white_balance),
+        "white_balance_sd": fit.white_balance_sd,
+        "faces": faces,
         "melanin_blend": fit.summary()["melanin_blend"],
     }
 

@@ -39,7 +39,9 @@ def search_cost(rgb, mask, repeats: int) -> dict:
     auto, _, with_search = first_and_median(lambda: fit_image(rgb, mask=mask, progress=False), repeats=repeats)
     gains = auto.white_balance
     _, _, given = first_and_median(lambda: fit_image(rgb, mask=mask, white_balance=gains, progress=False), repeats=repeats)
-    return {"pixels": int(rgb.shape[0] * rgb.shape[1]), "mask_pixels": int(mask.sum()), "white_balance": list(gains),
+    skin = mask if mask is not None else auto.region == 1  # no mask given: the faces found
+    return {"pixels": int(rgb.shape[0] * rgb.shape[1]), "mask_pixels": int(skin.sum()), "white_balance": list(gains),
+            "white_balance_sd": auto.white_balance_sd,
             "melanin_blend": auto.summary()["melanin_blend"],
             "s_with_search": with_search, "s_gains_given": given, "search_s": with_search - given}
 

@@ -65,6 +65,7 @@ GENERATED_BLOCKS = [
     ("calibration-methods", "calibration_methods.md"),
     ("fit-measured", "fit_measured.md"),
     ("fit-photos", "fit_photos.md"),
+    ("fit-image-tones", "fit_image_tones.md"),
     ("renderers", "renderers.md"),
     ("forward-model", "forward_model.md"),
     ("fit-image", "fit_image.md"),

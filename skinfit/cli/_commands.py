@@ -278,7 +278,7 @@ def cmd_fit_image(args) -> int:
     white_balance = parse_white_balance(args.white_balance)
     options = dict(
         melanin_blend=args.melanin_blend, fit_blend=args.fit_blend, white_balance=white_balance, input_space=args.input_space,
-        mask=args.mask, segmentation=args.segmentation, illuminant=args.illuminant, max_delta_e=args.max_delta_e, exact_steps=args.exact_steps, method=args.method,
+        mask=args.mask, segmentation=args.segmentation, input_type=args.input_type, illuminant=args.illuminant, max_delta_e=args.max_delta_e, exact_steps=args.exact_steps, method=args.method,
         model=model_from(args), progress=False if args.quiet else None, regularisation=args.regularisation, colour_chart=args.colour_chart,
     )
     if args.no_prior:

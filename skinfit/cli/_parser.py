@@ -102,6 +102,9 @@ def build_parser() -> argparse.ArgumentParser:
                        help="auto (default: camera gains fitted once per image from its skin pixels, within a camera prior "
                             "of 15 %% per channel), none (inputs known to be calibrated linear sRGB / sRGB, D65 white), chart "
                             "(from a ColorChecker in the frame, as --colour-chart) or R,G,B gains")
+    image.add_argument("--input", dest="input_type", choices=("photo", "albedo"), default="photo",
+                       help="photo (default: shading free per pixel) or albedo (a calibrated albedo capture: one shading scale for "
+                            "the image, fitted once; makes melanin identifiable in dark skin)")
     image.add_argument("--segmentation", choices=("faces", "none"), default="faces",
                        help="faces (default: fit the skin of the faces found by the shipped face models; where none is found, "
                             "every pixel) or none (every pixel; the skin model's gamut decides what is skin); --mask wins")

@@ -68,6 +68,8 @@ class ImageFit:
     region: np.ndarray | None = None  # (h, w) ``FaceRegion`` codes where faces were segmented
     faces: int | None = None  # faces found (None: not looked for)
     skin_from: str = "model gamut"  # what chose the pixels fitted: "faces", "mask" or "model gamut"
+    input_type: str = "photo"  # "photo" (shading free per pixel) or "albedo" (one shading scale)
+    shading_scale: float | None = None  # the albedo capture's shading scale (input_type "albedo")
 
     @property
     def model_name(self) -> str:
@@ -116,6 +118,8 @@ class ImageFit:
                 "colour_chart_median_dE2000": float(np.median(self.colour_chart.delta_e2000))} if self.colour_chart is not None else {}),
             "input_encoding": self.input_encoding,
             "skin_from": self.skin_from,
+            "input_type": self.input_type,
+            "shading_scale": self.shading_scale,
             "faces": self.faces,
             "model": self.model_name,
             "seconds": self.seconds,
@@ -136,6 +140,7 @@ def fit_image(
     input_space: str | None = None,
     mask=None,
     segmentation: str = "faces",
+    input_type: str = "photo",
     use_alpha: bool = True,
     illuminant: str = DEFAULT_ILLUMINANT,
     regularisation: str = "light",
@@ -169,6 +174,12 @@ def fit_image(
             brows, lips, nostrils, hair, background and clothes are MASKED; the region of every
             pixel is in ``region``); where no face is found, it warns and falls back to
             ``"none"``: every pixel, the model's gamut and ``skin_box`` deciding what is skin.
+        input_type: ``"photo"`` (default: the shading is free per pixel) or ``"albedo"``: a
+            calibrated albedo capture, whose shading is one scale for the whole image; the scale is
+            fitted once (the one under which the skin's colours are reproduced best) and every
+            pixel's shading held to it within ``ALBEDO_SHADING_SD``. This is what makes melanin
+            identifiable in dark skin, which a photo's free shading lets pass for lighter skin in
+            shadow.
         use_alpha: treat the file's alpha channel as a mask.
         illuminant: the illuminant of the camera model (colour-science name; D65 default).
         regularisation: ``"off"``, ``"light"`` (default) or ``"strong"``: a prior on each pixel's
@@ -262,6 +273,12 @@ def fit_image(
         if gains.shape != (3,) or not np.all(gains > 0):
             raise SkinfitInputError(f"white_balance must be 'auto', 'none', 'chart' or three positive gains, got {white_balance}")
     options = dict(melanin_blend=melanin_blend, illuminant=illuminant, model=model, **options)
+    shading_scale = None
+    if input_type == "albedo":
+        shading_scale = _albedo_shading_scale(rgb, gains, mask, options)
+        options["shading_prior"] = (shading_scale, ALBEDO_SHADING_SD)
+    elif input_type != "photo":
+        raise SkinfitInputError(f"input_type must be 'photo' or 'albedo', got {input_type!r}")
     maps = _fit_in_bands(rgb, gains, mask, options, progress)
     if options.get("shading_reference") is None:
         field = _coherent_branches(rgb, gains, maps, options)
@@ -275,7 +292,48 @@ def fit_image(
         fitted = chart.invert(fitted).astype(fitted.dtype)
     return ImageFit(**maps, fitted_linear_rgb=fitted, seconds=time.perf_counter() - start, white_balance=tuple(float(g) for g in gains),
                     model=model, colour_chart=chart, input_encoding=encoding, white_balance_sd=gains_sd, region=region, faces=faces,
-                    skin_from=skin_from)
+                    skin_from=skin_from, input_type=input_type, shading_scale=shading_scale)
+
+
+#: Standard deviation of ln shading about the image's one scale for ``input_type="albedo"``: what
+#: is left of the face's relief in an albedo capture.
+ALBEDO_SHADING_SD = 0.05
+
+#: ln of the shading scales tried for an albedo capture, about the first fits' median shading.
+_SCALE_GRID = np.linspace(np.log(0.4), np.log(2.5), 22)
+
+
+def _albedo_shading_scale(rgb, gains, mask, options, sample_size: int = 2048, trim: float = 0.8, seed: int = 0) -> float:
+    """The one shading scale of an albedo capture: on a sample of its fittable pixels, the scale
+    under which (shading held to it) the trimmed mean of the pixels' relative colour residuals is
+    least, on a grid about the free-shading fits' median, refined by a parabola through the best
+    three."""
+    pixels = rgb.reshape(-1, 3)
+    screened, _ = screen_pixels(pixels, None if mask is None else np.asarray(mask).reshape(-1),
+                                options.get("black_level", 1e-4), options.get("saturation_level", 0.999))
+    fittable = np.flatnonzero(screened == PixelStatus.SUCCESS)
+    if fittable.size == 0:
+        raise SkinfitInputError("no pixel of the image can be fitted (all black, saturated, masked or invalid)")
+    pick = np.random.default_rng(seed).choice(fittable, min(sample_size, fittable.size), replace=False)
+    sample = pixels[pick]
+    base = {k: v for k, v in options.items() if k not in ("shading_reference", "prior_mean", "prior_sd")}
+    base.update(white_balance=tuple(gains), progress=False, prior=False, lm_max_steps=0, max_straggler_rounds=8)
+    free = fit_pixels(sample, **base)
+    centre = float(np.median(free["shading"][free["status"] <= PixelStatus.OUT_OF_MODEL]))
+
+    def score(log_scale):
+        fit = fit_pixels(sample, shading_prior=(centre * np.exp(log_scale), ALBEDO_SHADING_SD), **base)
+        residual = np.linalg.norm(sample / gains - fit["fitted_rgb"], axis=-1) / np.linalg.norm(sample / gains, axis=-1)
+        residual = np.sort(residual[fit["status"] <= PixelStatus.OUT_OF_MODEL] ** 2)
+        return float(np.mean(residual[: max(1, int(trim * residual.size))])) if residual.size else np.inf
+
+    scores = np.array([score(x) for x in _SCALE_GRID])
+    best = int(np.clip(np.argmin(scores), 1, len(_SCALE_GRID) - 2))
+    x, y = _SCALE_GRID[best - 1 : best + 2], scores[best - 1 : best + 2]
+    curvature = y[0] - 2 * y[1] + y[2]
+    step = x[1] - x[0]
+    offset = 0.5 * step * (y[0] - y[2]) / curvature if curvature > 0 else 0.0
+    return float(centre * np.exp(x[1] + np.clip(offset, -step, step)))
 
 
 #: Long side above which faces are found on a box-downscaled copy (a face of 30 pixels there is

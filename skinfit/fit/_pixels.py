@@ -127,17 +127,22 @@ def _projected(colour, u, v, target, scale, prior) -> LockstepState:
 
     r = tuple((t - k * c) * scale for t, c in zip(target, m))
 
-    def d_residual(dm):
-        dk = _dot3(target, dm) / mm - tm * 2.0 * _dot3(m, dm) / (mm * mm)
-        return tuple(-(dk * c + k * d) * scale for c, d in zip(m, dm))
+    def d_shading(dm):
+        return _dot3(target, dm) / mm - tm * 2.0 * _dot3(m, dm) / (mm * mm)
 
-    ju, jv = d_residual(dm_u), d_residual(dm_v)
+    dk_u, dk_v = d_shading(dm_u), d_shading(dm_v)
+    ju, jv = (tuple(-(dk * c + k * d) * scale for c, d in zip(m, dm)) for dk, dm in ((dk_u, dm_u), (dk_v, dm_v)))
     cost, uu, uv, vv, gu, gv = _dot3(r, r), _dot3(ju, ju), _dot3(ju, jv), _dot3(jv, jv), _dot3(ju, r), _dot3(jv, r)
     # the prior's rows w (log root - c): d/du = w / u
-    centre_u, centre_v, weight_u, weight_v = prior
+    centre_u, centre_v, weight_u, weight_v, centre_k, weight_k = prior
     row_u, row_v = weight_u * (jnp.log(u) - centre_u), weight_v * (jnp.log(v) - centre_v)
     cost, gu, gv = cost + row_u * row_u + row_v * row_v, gu + weight_u / u * row_u, gv + weight_v / v * row_v
     uu, vv = uu + (weight_u / u) ** 2, vv + (weight_v / v) ** 2
+    # the shading's row w (ln k - c) (an albedo capture: shading known up to one scale); 0 weight: none
+    safe_k = jnp.maximum(k, 1e-30)
+    row_k, a_u, a_v = weight_k * (jnp.log(safe_k) - centre_k), weight_k * dk_u / safe_k, weight_k * dk_v / safe_k
+    cost, gu, gv = cost + row_k * row_k, gu + a_u * row_k, gv + a_v * row_k
+    uu, uv, vv = uu + a_u * a_u, uv + a_u * a_v, vv + a_v * a_v
     return LockstepState((u, v), cost, _Normal(uu, uv, vv, gu, gv, k, m))
 
 
@@ -191,7 +196,7 @@ def _gauss_newton(colour, roots, target, damping, steps, prior):
     error would be ~its square), or 0 where the point is first-order stationary (colours outside
     the gamut, where the steps shrink only linearly).
 
-    ``prior`` (n, 4): per pixel the centres and weights of the prior rows (``_prior_rows``).
+    ``prior`` (n, 6): per pixel the centres and weights of the prior rows (``_prior_rows``).
 
     Returns the roots (n, 2), the shading, ``remaining``, the square root of the cost (relative
     residual and prior rows) (each (n,)), the fitted colour (n, 3), the damping (n,) and the
@@ -199,7 +204,7 @@ def _gauss_newton(colour, roots, target, damping, steps, prior):
     """
     target = (target[:, 0], target[:, 1], target[:, 2])
     scale = 1.0 / jnp.sqrt(_dot3(target, target))
-    prior = tuple(prior[:, i] for i in range(4))
+    prior = tuple(prior[:, i] for i in range(6))
 
     def step(_, carried):
         state, damping = carried
@@ -266,7 +271,8 @@ def _levenberg_marquardt(coefficients, roots, target, prior, max_steps, rtol, at
         z = jnp.clip(z, _ROOT_FLOOR, 1.0)
         m = spline_rgb(coefficients, z[None])[0][0]
         k = jnp.dot(t, m) / jnp.dot(m, m)
-        return jnp.concatenate([(t - k * m) / jnp.linalg.norm(t), prior[2:] * (jnp.log(z) - prior[:2])])
+        shading_row = prior[5:6] * (jnp.log(jnp.maximum(k, 1e-30)) - prior[4:5])
+        return jnp.concatenate([(t - k * m) / jnp.linalg.norm(t), prior[2:4] * (jnp.log(z) - prior[:2]), shading_row])
 
     def one(r0, t, p):
         solver = optx.LevenbergMarquardt(rtol=rtol, atol=atol)
@@ -304,6 +310,7 @@ def fit_pixels(
     prior_mean: np.ndarray | None = None,
     prior_sd: np.ndarray | None = None,
     initial: tuple[np.ndarray, np.ndarray] | None = None,
+    shading_prior: tuple | None = None,
 ) -> dict[str, np.ndarray]:
     """Fit every pixel of a linear sRGB image (h, w, 3) (or pixels (n, 3)).
 
@@ -337,6 +344,9 @@ def fit_pixels(
         prior_mean, prior_sd: (2,) or per pixel (..., 2) mean and standard deviation of
             (ln C_m, ln C_h) that replace the model's population prior (spatial regularisation
             passes the neighbourhood's values here).
+        shading_prior: (shading, sd) : a prior on ln shading, normal about ln shading (one value
+            or one per pixel) with standard deviation sd: what an albedo capture knows (its shading
+            is one scale for the image); None (default): the shading is free.
         initial: (C_m, C_h), each of the input's leading shape, to start from instead of the
             inverse table's warm starts (a refit from an earlier fit: its branch is kept).
 
@@ -366,7 +376,7 @@ def fit_pixels(
         raise SkinfitInputError("the colour table's melanin_blend, illuminant and model must match the fit's")
     todo = np.flatnonzero(status == 0)
     n = len(pixels)
-    rows = _prior_rows(model, table, n, prior, colour_noise, prior_mean, prior_sd)
+    rows = _prior_rows(model, table, n, prior, colour_noise, prior_mean, prior_sd, shading_prior)
     if shading_reference is not None and np.ndim(shading_reference):
         shading_reference = np.broadcast_to(np.asarray(shading_reference, dtype=float), shape).reshape(-1)[todo]
     roots, shading, remaining, delta_e, fitted = np.zeros((n, 2)), np.zeros(n), np.zeros(n), np.zeros(n), np.zeros((n, 3))
@@ -415,13 +425,21 @@ def fit_pixels(
     return {k: v.reshape(*shape, *v.shape[1:]) for k, v in maps.items()}
 
 
-def _prior_rows(model, table, n, prior, colour_noise, mean, sd) -> np.ndarray:
-    """The solver's prior rows (n, 4): centres of ln u, ln v and weights colour_noise / sd(ln u)
-    (u = sqrt(C / C_max), so ln u = (ln C - ln C_max) / 2); weights 0 without a prior."""
+def _prior_rows(model, table, n, prior, colour_noise, mean, sd, shading_prior=None) -> np.ndarray:
+    """The solver's prior rows (n, 6): centres of ln u, ln v and weights colour_noise / sd(ln u)
+    (u = sqrt(C / C_max), so ln u = (ln C - ln C_max) / 2); weights 0 without a prior; then the
+    shading's, the centre of ln k and colour_noise / sd(ln k) from ``shading_prior`` (shading, sd
+    of its ln; the shading one value or (n,)), 0 without one."""
     population = model.prior
     if prior is None:
         prior = population is not None or mean is not None
-    rows = np.zeros((n, 4))
+    rows = np.zeros((n, 6))
+    if shading_prior is not None:
+        centre, sd_ln = shading_prior
+        centre = np.broadcast_to(np.asarray(centre, dtype=float), (n,))
+        if not (np.all(centre > 0) and sd_ln > 0 and colour_noise > 0):
+            raise SkinfitInputError("shading_prior needs a positive shading and standard deviation")
+        rows[:, 4], rows[:, 5] = np.log(centre), colour_noise / sd_ln
     if not prior:
         return rows
     if mean is None or sd is None:
@@ -438,7 +456,7 @@ def _prior_rows(model, table, n, prior, colour_noise, mean, sd) -> np.ndarray:
         raise SkinfitInputError("prior_sd must be positive")
     maxima = np.log([table.melanin_max, table.haemoglobin_max])
     rows[:, :2] = (mean - maxima) / 2.0
-    rows[:, 2:] = colour_noise / (sd / 2.0)
+    rows[:, 2:4] = colour_noise / (sd / 2.0)
     return rows
 
 
@@ -478,7 +496,7 @@ def screen_pixels(pixels, mask, black_level, saturation_level):
 
 
 def _solve(table, target, prior, steps, straggler_steps, max_rounds, lm_max_steps, step_tol, reference, size, progress, initial=None):
-    """The spline fit of pixels (n, 3) under the prior rows (n, 4): warm starts (or the roots
+    """The spline fit of pixels (n, 3) under the prior rows (n, 6): warm starts (or the roots
     ``initial`` (n, 2)), lock-step steps, the second branch where it may win, stragglers. ``reference``: the shading (one value or per
     pixel) that chooses between the fold's branches (None: the median of single-branch pixels).
     Returns roots, shading, the distance still to go, the root cost, the fitted colour and the
