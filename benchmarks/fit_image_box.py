@@ -53,17 +53,22 @@ def box_maps(size: int, box: dict | None = None):
 
 def colour_science_render(melanin, haemoglobin, shading, melanin_blend: float, model) -> np.ndarray:
     """Linear sRGB (h, w, 3): the model's spectra, colour-science's colour."""
-    import colour
-
     params = skinfit.SkinParams(melanin.ravel(), np.full(melanin.size, melanin_blend), haemoglobin.ravel())
     spectra = np.asarray(skinfit.diffuse_reflectance(params, RENDER_WAVELENGTHS_NM, model=model))
-    shape = colour.SpectralShape(RENDER_WAVELENGTHS_NM[0], RENDER_WAVELENGTHS_NM[-1], 5.0)
-    msds = colour.MultiSpectralDistributions(spectra.T, RENDER_WAVELENGTHS_NM)
+    return colour_science_linear_srgb(spectra, RENDER_WAVELENGTHS_NM).reshape(*melanin.shape, 3) * shading[..., None]
+
+
+def colour_science_linear_srgb(spectra: np.ndarray, wavelengths_nm: np.ndarray) -> np.ndarray:
+    """Linear sRGB (n, 3) of reflectance spectra (n, m) on an even grid, by colour-science alone
+    (CIE 1931 2 degrees, D65, integration), not skinfit's colour code."""
+    import colour
+
+    shape = colour.SpectralShape(wavelengths_nm[0], wavelengths_nm[-1], float(wavelengths_nm[1] - wavelengths_nm[0]))
+    msds = colour.MultiSpectralDistributions(np.asarray(spectra).T, wavelengths_nm)
     cmfs = colour.MSDS_CMFS["CIE 1931 2 Degree Standard Observer"].copy().align(shape)
     xyz = colour.msds_to_XYZ(msds, cmfs, colour.SDS_ILLUMINANTS["D65"].copy().align(shape), method="Integration") / 100.0
     srgb = colour.RGB_COLOURSPACES["sRGB"]
-    linear = colour.XYZ_to_RGB(xyz, srgb, illuminant=srgb.whitepoint, chromatic_adaptation_transform=None, apply_cctf_encoding=False)
-    return linear.reshape(*melanin.shape, 3) * shading[..., None]
+    return colour.XYZ_to_RGB(xyz, srgb, illuminant=srgb.whitepoint, chromatic_adaptation_transform=None, apply_cctf_encoding=False)
 
 
 def relative_errors(fit, truth: dict) -> dict:

@@ -23,11 +23,11 @@ import argparse
 import json
 from pathlib import Path
 
-import colour
 import numpy as np
 
 import skinfit
 from benchmarks._record import provenance
+from benchmarks.fit_image_box import colour_science_linear_srgb
 
 ISSA = Path(__file__).resolve().parents[2] / "shared/data/issa-subset/issa_subset.csv"
 WAVELENGTHS = np.arange(400.0, 701.0, 10.0)
@@ -52,12 +52,7 @@ def people(archive, group: str, limit: int) -> np.ndarray:
 def render_patches(spectra: np.ndarray):
     """Linear sRGB image of one 8 x 8 patch per spectrum under a smooth shading 0.75-1, and the
     (row, column) slice of each patch."""
-    shape = colour.SpectralShape(WAVELENGTHS[0], WAVELENGTHS[-1], 10.0)
-    msds = colour.MultiSpectralDistributions(spectra.T, WAVELENGTHS)
-    cmfs = colour.MSDS_CMFS["CIE 1931 2 Degree Standard Observer"].copy().align(shape)
-    xyz = colour.msds_to_XYZ(msds, cmfs, colour.SDS_ILLUMINANTS["D65"].copy().align(shape), method="Integration") / 100.0
-    srgb = colour.RGB_COLOURSPACES["sRGB"]
-    linear = colour.XYZ_to_RGB(xyz, srgb, illuminant=srgb.whitepoint, chromatic_adaptation_transform=None, apply_cctf_encoding=False)
+    linear = colour_science_linear_srgb(spectra, WAVELENGTHS)
     side = int(np.ceil(np.sqrt(len(spectra))))
     image, mask = np.zeros((side * PATCH, side * PATCH, 3)), np.zeros((side * PATCH, side * PATCH), bool)
     y, x = np.mgrid[0 : side * PATCH, 0 : side * PATCH] / (side * PATCH - 1)
