@@ -10,7 +10,9 @@ primaries), or the name of any colour-science RGB colourspace (``"Display P3"``,
 sRGB (Bradford adaptation where the white points differ). Channels are found by name (R, G, B and
 optionally A), not by position.
 
-Files as cameras write them: the EXIF orientation is applied (pixels come out as the photo is
+Files as cameras write them: camera raw files (DNG, CR2/CR3, NEF, ARW, RAF, ORF, RW2, ...) go
+through rawpy (LibRaw, optional: ``skinfit[raw]``) to linear sRGB with the camera's white balance;
+the EXIF orientation is applied (pixels come out as the photo is
 shown), and a file the decoder reports damaged (a truncated JPEG, whose missing part libjpeg
 fills with grey; a PNG cut short) is refused with a one-line error rather than fitted.
 """
@@ -41,10 +43,16 @@ def read_linear_rgb(path: str | os.PathLike, input_space: str | None = None) -> 
     return rgb, alpha
 
 
+#: Camera raw files, read through rawpy (LibRaw) when it is installed (``skinfit[raw]``).
+RAW_SUFFIXES = frozenset({".dng", ".cr2", ".cr3", ".nef", ".arw", ".raf", ".orf", ".rw2", ".pef", ".srw"})
+
+
 def read_image(path: str | os.PathLike, input_space: str | None = None) -> tuple[np.ndarray, np.ndarray | None, str]:
     """``read_linear_rgb`` and a description of the encoding it decoded (``"sRGB"``, ``"linear"``,
-    ``"ICC profile 'Display P3'"``, or the ``input_space`` given)."""
+    ``"ICC profile 'Display P3'"``, ``"camera raw (LibRaw)"``, or the ``input_space`` given)."""
     path = Path(path)
+    if path.suffix.lower() in RAW_SUFFIXES:
+        return _read_raw(path), None, "camera raw (LibRaw, camera white balance, linear sRGB)"
     spec, pixels = _read_pixels(path)
     names = [name.upper() for name in spec.channelnames]
     index = {}
@@ -71,6 +79,24 @@ def read_image(path: str | os.PathLike, input_space: str | None = None) -> tuple
             return profile.to_linear_srgb(rgb), alpha, f"ICC profile {profile.description!r}"
     space = input_space or _default_space(spec)
     return to_linear_srgb(rgb, space), alpha, space
+
+
+def _read_raw(path: Path) -> np.ndarray:
+    """A camera raw file as linear sRGB (h, w, 3) float64: LibRaw's demosaic with the camera's white
+    balance, no brightening, gamma 1 (linear), sRGB primaries, 16 bits, its orientation applied."""
+    try:
+        import rawpy
+    except ImportError as error:
+        raise SkinfitInputError(f"{path.name} is a camera raw file: reading it needs rawpy (pip install 'skinfit[raw]')") from error
+    if not path.is_file():
+        raise SkinfitInputError(f"cannot read image {path}: no such file")
+    try:
+        with rawpy.imread(str(path)) as raw:
+            rgb = raw.postprocess(gamma=(1, 1), no_auto_bright=True, output_bps=16, use_camera_wb=True,
+                                  output_color=rawpy.ColorSpace.sRGB)
+    except Exception as error:  # LibRaw's errors (unsupported camera, damaged file) have no common base
+        raise SkinfitInputError(f"cannot read camera raw file {path}: {_first_line(str(error)) or type(error).__name__}") from error
+    return np.asarray(rgb, dtype=np.float64) / 65535.0
 
 
 def read_mask(path: str | os.PathLike) -> np.ndarray:

@@ -138,3 +138,35 @@ def test_truncated_and_corrupt_photos_are_refused(tmp_path):
     (tmp_path / "cut.png").write_bytes(png[: len(png) // 3])
     with pytest.raises(SkinfitInputError, match="cannot read image"):
         read_linear_rgb(tmp_path / "cut.png")
+
+
+def test_camera_raw_goes_through_rawpy_linear(tmp_path, monkeypatch):
+    """A raw file is demosaicked by rawpy with gamma 1, no brightening and the camera's balance, and
+    its 16-bit output scaled to linear [0, 1] (rawpy stood in for: no raw file ships with the tests);
+    without rawpy the error names the extra to install."""
+    import sys
+    import types
+
+    calls = {}
+
+    class Raw:
+        def __enter__(self):
+            return self
+
+        def __exit__(self, *exc):
+            return False
+
+        def postprocess(self, **options):
+            calls.update(options)
+            return np.full((2, 3, 3), 32768, np.uint16)
+
+    fake = types.SimpleNamespace(imread=lambda path: Raw(), ColorSpace=types.SimpleNamespace(sRGB="sRGB"))
+    (tmp_path / "shot.dng").write_bytes(b"raw")
+    monkeypatch.setitem(sys.modules, "rawpy", fake)
+    rgb, alpha, encoding = read_image(tmp_path / "shot.dng")
+    assert alpha is None and encoding.startswith("camera raw")
+    np.testing.assert_allclose(rgb, 32768 / 65535)
+    assert calls["gamma"] == (1, 1) and calls["no_auto_bright"] and calls["use_camera_wb"] and calls["output_color"] == "sRGB"
+    monkeypatch.setitem(sys.modules, "rawpy", None)  # not installed
+    with pytest.raises(SkinfitInputError, match=r"skinfit\[raw\]"):
+        read_linear_rgb(tmp_path / "shot.dng")
