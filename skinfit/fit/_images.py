@@ -254,13 +254,8 @@ def fit_image(
     gains, gains_sd = np.ones(3), None
     if fit_blend or (isinstance(white_balance, str) and white_balance == "auto"):
 
-        pixels = rgb.reshape(-1, 3)
-        screened, _ = screen_pixels(pixels, mask, options.get("black_level", 1e-4), options.get("saturation_level", 0.999))
-        fittable = screened == PixelStatus.SUCCESS
-        if not fittable.any():
-            raise SkinfitInputError("no pixel of the image can be fitted (all black, saturated, masked or invalid)")
         calibration = calibrate(
-            pixels[fittable], melanin_blend=None if fit_blend else melanin_blend, white_balance=white_balance == "auto",
+            _fittable_pixels(rgb, mask, options), melanin_blend=None if fit_blend else melanin_blend, white_balance=white_balance == "auto",
             illuminant=illuminant, model=model, colour_noise=options.get("colour_noise", 0.003), prior=options.get("prior"),
         )
         melanin_blend, gains = calibration.melanin_blend, np.asarray(calibration.white_balance)
@@ -303,19 +298,23 @@ ALBEDO_SHADING_SD = 0.05
 _SCALE_GRID = np.linspace(np.log(0.4), np.log(2.5), 22)
 
 
+def _fittable_pixels(rgb, mask, options) -> np.ndarray:
+    """The pixels (n, 3) that a fit would take: not black, saturated, masked or invalid."""
+    pixels = rgb.reshape(-1, 3)
+    screened, _ = screen_pixels(pixels, mask, options.get("black_level", 1e-4), options.get("saturation_level", 0.999))
+    fittable = screened == PixelStatus.SUCCESS
+    if not fittable.any():
+        raise SkinfitInputError("no pixel of the image can be fitted (all black, saturated, masked or invalid)")
+    return pixels[fittable]
+
+
 def _albedo_shading_scale(rgb, gains, mask, options, sample_size: int = 2048, trim: float = 0.8, seed: int = 0) -> float:
     """The one shading scale of an albedo capture: on a sample of its fittable pixels, the scale
     under which (shading held to it) the trimmed mean of the pixels' relative colour residuals is
     least, on a grid about the free-shading fits' median, refined by a parabola through the best
     three."""
-    pixels = rgb.reshape(-1, 3)
-    screened, _ = screen_pixels(pixels, None if mask is None else np.asarray(mask).reshape(-1),
-                                options.get("black_level", 1e-4), options.get("saturation_level", 0.999))
-    fittable = np.flatnonzero(screened == PixelStatus.SUCCESS)
-    if fittable.size == 0:
-        raise SkinfitInputError("no pixel of the image can be fitted (all black, saturated, masked or invalid)")
-    pick = np.random.default_rng(seed).choice(fittable, min(sample_size, fittable.size), replace=False)
-    sample = pixels[pick]
+    fittable = _fittable_pixels(rgb, mask, options)
+    sample = fittable[np.random.default_rng(seed).choice(len(fittable), min(sample_size, len(fittable)), replace=False)]
     base = {k: v for k, v in options.items() if k not in ("shading_reference", "prior_mean", "prior_sd")}
     base.update(white_balance=tuple(gains), progress=False, prior=False, lm_max_steps=0, max_straggler_rounds=8)
     free = fit_pixels(sample, **base)
@@ -336,30 +335,14 @@ def _albedo_shading_scale(rgb, gains, mask, options, sample_size: int = 2048, tr
     return float(centre * np.exp(x[1] + np.clip(offset, -step, step)))
 
 
-#: Long side above which faces are found on a box-downscaled copy (a face of 30 pixels there is
-#: 0.7 % of the side; the copy of a 48 MP photo would hold 0.6 GB).
-_SEGMENTATION_SIDE = 4096
-
-
 def _segment(rgb: np.ndarray) -> FaceSegmentation | None:
-    """The faces of a linear sRGB image, on its sRGB encoding (as the face models saw photos), at
-    most ``_SEGMENTATION_SIDE`` pixels on the long side; None where the runtime is missing."""
-    factor = int(np.ceil(max(rgb.shape[:2]) / _SEGMENTATION_SIDE))
-    small = rgb if factor == 1 else rgb[: rgb.shape[0] // factor * factor, : rgb.shape[1] // factor * factor].reshape(
-        rgb.shape[0] // factor, factor, rgb.shape[1] // factor, factor, 3).mean(axis=(1, 3))
+    """The faces of a linear sRGB image, on its sRGB encoding (as the face models saw photos);
+    None where the runtime is missing."""
     try:
-        found = segment_faces(np.asarray(srgb_encode(np.clip(small, 0.0, 1.0).astype(np.float32))))
+        return segment_faces(np.asarray(srgb_encode(np.clip(rgb, 0.0, 1.0).astype(np.float32))))
     except SegmentationUnavailable as error:
         warnings.warn(f"{error}: fitting every pixel, the skin model's gamut deciding what is skin", stacklevel=3)
         return None
-    if factor == 1:
-        return found
-    region = np.zeros(rgb.shape[:2], np.uint8)  # nearest: each copy pixel's block, the remainder as its edge
-    rows = np.minimum(np.arange(rgb.shape[0]) // factor, found.region.shape[0] - 1)
-    cols = np.minimum(np.arange(rgb.shape[1]) // factor, found.region.shape[1] - 1)
-    region[:] = found.region[rows][:, cols]
-    faces = tuple(dataclasses.replace(f, box=f.box * factor, landmarks=f.landmarks * factor) for f in found.faces)
-    return FaceSegmentation(faces, region)
 
 
 def population_blend(model: SkinModel) -> float:
@@ -529,6 +512,9 @@ def _classify(rgb, gains, maps, field, model):
     status = maps["status"]
     box = skin_box(model)
     implausible = np.zeros(status.shape, bool)
+    # the colour reproduced: the margin beyond the box applies only there (a skin on the edge fits
+    # exactly; a glint, skin plus white, fits as the lightest skin with a CIEDE2000 of 0.5)
+    exact = maps["residual_dE2000"] <= _EXACT_DE
     for name, top in (("melanin", MELANIN_MAX), ("haemoglobin", HAEMOGLOBIN_MAX)):
         value, low, high = maps[name], *box[name]
         # outside the skin box, or pinned at the table's top by a colour beyond it (missed by more
@@ -537,10 +523,7 @@ def _classify(rgb, gains, maps, field, model):
         # value, or than a quarter of the box) is skin of unknown C_h, wherever the solver left it.
         se = maps[f"{name}_se"]
         identified = se < np.minimum(_IDENTIFIED * top, value)
-        pinned = (value >= 0.999 * top) & (maps["residual_dE2000"] > _EXACT_DE)
-        # the margin only where the fit reproduces the colour (a skin on the edge fits exactly; a
-        # glint, skin plus white, fits as the lightest skin with a CIEDE2000 of 0.5)
-        exact = maps["residual_dE2000"] <= _EXACT_DE
+        pinned = (value >= 0.999 * top) & ~exact
         margin = np.where(exact, np.exp(np.minimum(2.0 * se / np.maximum(value, 1e-12), _EDGE_MARGIN)), 1.0)
         implausible |= identified & (pinned | (value * margin < low) | (value > high * margin))
     # another surface than the skin around it (hair, brows, eyes): a shading far from the field
