@@ -8,13 +8,17 @@ Needs ``../shared/data/issa-subset/`` (ISSA, d/8 with specular included; not shi
 estimates it (an albedo capture sees none): each person an 8 x 8 patch of an image, under a
 smooth shading 0.75-1 across the image; the colour is colour-science's (CIE 1931 2 degrees, D65, linear
 sRGB), not skinfit's. Fitted by ``fit_image`` with the defaults but ``white_balance="none"`` (the render
-is calibrated) and no segmentation (no faces in the image), once as a photo (``input_type="photo"``,
-the shading free per pixel) and once as an albedo capture (``input_type="albedo"``, one shading scale).
+is calibrated) and no segmentation (no faces in the image: each patch is given as a person of its
+own through ``blend_regions``, so that each gets its own blend, as each face of a photo does), once
+as a photo (``input_type="photo"``, the shading free per pixel) and once as an albedo capture
+(``input_type="albedo"``, one shading scale for the image).
 Reference: ``fit_spectra`` of the same spectra (default model, ``specular_included_deg=8``,
 ``bandwidth_nm=10``). Per person: the median of the patch's SUCCESS pixels, and its median standard
 error. Reported per group: pixels fitted, the image melanin's relative error against the spectral
 value (median bias, median and 90th percentile of its size), and the share of people whose spectral
-value lies within two standard errors of the image value.
+value lies within two standard errors of the image value. Also per group: the model's colour
+discrepancy on these skins (the relative linear sRGB difference between a measured spectrum and its
+spectral fit, both by colour-science), against which ``skinfit.fit.MODEL_DISCREPANCY`` was set.
 """
 
 from __future__ import annotations
@@ -108,14 +112,25 @@ def main(argv=None):
         diffuse = np.asarray(skinfit.diffuse_reflectance(fitted.skin_params(), WAVELENGTHS))
         albedo = np.clip(spectra - (np.asarray(fitted.fitted) - diffuse), 0.0, None)
         image, mask, patches = render_patches(albedo)
+        labels = np.zeros(mask.shape, np.int16)
+        for k, where in enumerate(patches):
+            labels[where] = k + 1
+        measured, modelled = colour_science_linear_srgb(spectra, WAVELENGTHS), colour_science_linear_srgb(np.asarray(fitted.fitted), WAVELENGTHS)
+        discrepancy = np.linalg.norm(measured - modelled, axis=-1) / np.linalg.norm(measured, axis=-1)
         blend = np.asarray(fitted.parameters["melanin_blend"])
         row = {"people": len(spectra), "spectral_melanin_median": float(np.median(spectral)),
                "spectral_blend_median": float(np.median(blend)),
                "spectral_blend_on_a_bound": float(np.mean((blend <= 1e-3) | (blend >= 1 - 1e-3))),
-               "specular_part_at_450nm_median": float(np.median((np.asarray(fitted.fitted) - diffuse)[:, 5]))}
+               "specular_part_at_450nm_median": float(np.median((np.asarray(fitted.fitted) - diffuse)[:, 5])),
+               "model_colour_discrepancy_median": float(np.median(discrepancy)),
+               "model_colour_discrepancy_p90": float(np.percentile(discrepancy, 90))}
         for input_type in ("photo", "albedo"):
-            fit = skinfit.fit_image(image, mask=mask, white_balance="none", input_type=input_type, progress=False)
+            fit = skinfit.fit_image(image, mask=mask, white_balance="none", input_type=input_type, blend_regions=labels, progress=False)
             row[input_type] = summarise(fit, mask, patches, spectral)
+            image_blend = np.array([b["melanin_blend"] for b in sorted(fit.blends, key=lambda b: b["label"])])
+            row[input_type].update(seconds=fit.seconds, image_blend_median=float(np.median(image_blend)),
+                                   image_blend_sd_median=float(np.median([b["sd"] for b in fit.blends])),
+                                   blend_abs_error_median=float(np.median(np.abs(image_blend - blend))) if len(image_blend) == len(blend) else None)
         result["groups"][group] = row
         print(group, json.dumps(row))
     out = Path(args.out)
@@ -129,16 +144,17 @@ def table(result: dict) -> str:
     spectral fit, and how often two standard errors hold the spectral value."""
     lines = [f"ISSA cheeks by group (`python -m benchmarks.fit_image_tones`, {result['date']}, {result['machine']}; "
              f"{result['people_per_group']} people per group at most, rendered as albedo by colour-science, white balance none, "
-             "blend 0.423); image melanin against the spectral fit's:", "",
-             "| group | people | spectral C_m / blend (on a bound) | input | pixels fitted | bias (median) | error median / p90 | within 2 se |",
-             "|---|---|---|---|---|---|---|---|"]
+             "each person's blend estimated from their own patch); image melanin against the spectral fit's:", "",
+             "| group | people | spectral C_m / blend (on a bound) | input | pixels fitted | bias (median) | error median / p90 | within 2 se | image blend (median sd) |",
+             "|---|---|---|---|---|---|---|---|---|"]
     for group, row in result["groups"].items():
         for kind in ("photo", "albedo"):
             r = row[kind]
             head = (f"{group} | {row['people']} | {row['spectral_melanin_median']:.3f} / {row['spectral_blend_median']:.2f} "
                     f"({100 * row['spectral_blend_on_a_bound']:.0f} %)") if kind == "photo" else " | | "
             lines.append(f"| {head} | {kind} | {100 * r['pixels_fitted']:.1f} % | {100 * r['melanin_bias_median']:+.1f} % | "
-                         f"{100 * r['melanin_error_median']:.1f} % / {100 * r['melanin_error_p90']:.1f} % | {100 * r['spectral_within_2se']:.0f} % |")
+                         f"{100 * r['melanin_error_median']:.1f} % / {100 * r['melanin_error_p90']:.1f} % | {100 * r['spectral_within_2se']:.0f} % | "
+                         f"{r['image_blend_median']:.2f} ({r['image_blend_sd_median']:.2f}) |")
     return "\n".join(lines)
 
 

@@ -28,7 +28,7 @@ def fit_image_to_folder(path, out: Path, options: dict) -> str:
     return (
         f"{path}: {_skin_text(fit)}, {summary['fitted']} of {summary['pixels']} pixels fitted ({100 * summary['fitted_fraction']:.1f} %), "
         f"CIEDE2000 median {summary['median_dE2000']:.3g}, 95th percentile {summary['p95_dE2000']:.3g}, "
-        f"blend {summary['melanin_blend']:.3g}, white balance {white_balance_text(fit)}, "
+        f"blend {blend_text(fit)}, white balance {white_balance_text(fit)}, "
         f"model {summary['model']}, {summary['seconds']:.1f} s -> {maps_path}"
     )
 
@@ -37,6 +37,14 @@ def _skin_text(fit) -> str:
     if fit.skin_from == "faces":
         return f"{fit.faces} face{'s' if fit.faces != 1 else ''}"
     return "no face found" if fit.faces == 0 else f"skin from the {fit.skin_from}"
+
+
+def blend_text(fit) -> str:
+    """The blend, with its sd where estimated per face: '0.425 (+-0.26)' or, for several faces,
+    each face's."""
+    if not fit.blends:
+        return f"{fit.summary()['melanin_blend']:.3g}"
+    return ", ".join(f"{b['melanin_blend']:.3g} (+-{b['sd']:.2g})" for b in fit.blends)
 
 
 def white_balance_text(fit) -> str:

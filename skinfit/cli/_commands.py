@@ -41,7 +41,7 @@ from ._arguments import (
     parse_white_balance,
     read_input_spectra,
 )
-from ._batch import encoded_srgb, fit_image_to_folder, white_balance_text, write_fit
+from ._batch import blend_text, encoded_srgb, fit_image_to_folder, white_balance_text, write_fit
 from ._dask import fit_images_on_cluster
 from ._plots import plot_fits, plot_image_fit, plot_profiles, plot_spectra
 
@@ -150,7 +150,7 @@ def cmd_demo(args) -> int:
           f"{int(face_skin.sum())} skin pixels, {int(skin.sum())} fitted ({100 * skin.mean():.1f} %; the rest: see the status map)")
     print(f"  CIEDE2000 over the skin median {np.median(delta_e):.2g}, 95th percentile {np.percentile(delta_e, 95):.2g}; "
           f"melanin median {np.median(fit.melanin[face_skin][skin]):.3f}, haemoglobin median {np.median(fit.haemoglobin[face_skin][skin]):.4f}")
-    print(f"  melanin blend {summary['melanin_blend']:.3g}, white balance {white_balance_text(fit)}, {summary['seconds']:.1f} s")
+    print(f"  melanin blend {blend_text(fit)}, white balance {white_balance_text(fit)}, {summary['seconds']:.1f} s")
     print(f"wrote {out}/: maps.exr ({', '.join(fit.maps())}), maps.png, regions.png, reconstructed.png, dE2000.png, skin_mask.png, blush.png")
     return 0
 

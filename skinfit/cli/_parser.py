@@ -96,8 +96,9 @@ def build_parser() -> argparse.ArgumentParser:
     image.add_argument("inputs", nargs="+", metavar="INPUT", help="EXR, TIFF, PNG or JPEG files")
     image.add_argument("--out", required=True, help="output folder (maps EXR, reconstruction and CIEDE2000 PNGs per input)")
     image.add_argument("--melanin-blend", type=float, default=None,
-                       help="beta_m for the whole image (default: the model's population mean, 0.42 calibrated, 0.7 DJ2006)")
-    image.add_argument("--fit-blend", action="store_true", help="fit beta_m once for each image instead")
+                       help="beta_m for the whole image (default: estimated per face from its skin, with its uncertainty, "
+                            "for a model with a population prior; 0.7 for DJ2006)")
+    image.add_argument("--fit-blend", action="store_true", help="fit beta_m once for each image with the white balance instead")
     image.add_argument("--white-balance", default="auto",
                        help="auto (default: camera gains fitted once per image from its skin pixels, within a camera prior "
                             "of 15 %% per channel), none (inputs known to be calibrated linear sRGB / sRGB, D65 white), chart "

@@ -21,6 +21,8 @@ from ._cie import (
 from ._colour_chart import ChartCalibration, chart_calibration, reference_swatches
 from ._colour_table import (
     COLOUR_WAVELENGTHS_NM,
+    DARK_HAEMOGLOBIN_MAX,
+    DARK_MELANIN_MAX,
     HAEMOGLOBIN_MAX,
     MELANIN_MAX,
     ColourTable,
@@ -44,6 +46,8 @@ __all__ = [
     "DEFAULT_ILLUMINANT",
     "delta_e2000",
     "HAEMOGLOBIN_MAX",
+    "DARK_HAEMOGLOBIN_MAX",
+    "DARK_MELANIN_MAX",
     "linear_srgb_to_lab",
     "linear_srgb_weights",
     "MELANIN_MAX",

@@ -49,6 +49,14 @@ from ._cie import DEFAULT_ILLUMINANT, linear_srgb_weights
 MELANIN_MAX = 0.5
 HAEMOGLOBIN_MAX = 0.15
 
+#: The box of dark skin's faces (``skinfit.fit`` takes it for a face whose own fits reach the edge of
+#: the box above): the calibrated model's spectral fits of ISSA's African cheeks reach melanin 0.84 and
+#: haemoglobin 0.44 (``benchmarks/fit_image_tones.py``), and the box above left two thirds of those
+#: faces' pixels pinned at its top. Not the default: a wider box lets more colours of light skin reach
+#: a second exact solution of the fold (a quarter of noisy copies of DJ2006's (0.05, 0.02) at 0.2 %).
+DARK_MELANIN_MAX = 1.0
+DARK_HAEMOGLOBIN_MAX = 0.5
+
 #: Largest move of a warm start along its chromaticity Jacobian (normalised roots): the linear
 #: model is poor near the fold, where the Jacobian is near singular.
 _AFFINE_REACH = 0.3
@@ -167,11 +175,15 @@ def colour_table(
         nodes = TRANSPORT_NODES if direct else 129
     key = (float(melanin_blend), str(illuminant), float(melanin_max), float(haemoglobin_max), int(nodes), int(inverse_cells),
            cache_key(model))
-    return _TABLES.get(key, lambda: _colour_table(float(melanin_blend), str(illuminant), float(melanin_max), float(haemoglobin_max),
+    # coarse tables (the blend search's, skinfit.fit) are kept apart: a search over 20 blends must
+    # not push the full-size tables a fit is using out of their cache
+    cache = _TABLES if inverse_cells >= 512 else _COARSE_TABLES
+    return cache.get(key, lambda: _colour_table(float(melanin_blend), str(illuminant), float(melanin_max), float(haemoglobin_max),
                                                   int(nodes), int(inverse_cells), model, direct))
 
 
 _TABLES = BoundedCache(8)
+_COARSE_TABLES = BoundedCache(48)
 
 
 def _colour_table(melanin_blend, illuminant, melanin_max, haemoglobin_max, nodes, inverse_cells, model, direct) -> ColourTable:

@@ -3,6 +3,7 @@ the transport polish, pixels and images (with their calibration), and the calibr
 constants against measured spectra.
 """
 
+from ._face_blend import BLEND_GRID, MODEL_DISCREPANCY, BlendEstimate, estimate_blends
 from ._image_calibration import ImageCalibration, calibrate
 from ._images import ImageFit, fit_image, population_blend, skin_box
 from ._linalg import solve_normal
@@ -30,6 +31,10 @@ from ._warm_start import build_fit_table
 __all__ = [
     "build_fit_table",
     "calibrate",
+    "estimate_blends",
+    "BlendEstimate",
+    "BLEND_GRID",
+    "MODEL_DISCREPANCY",
     "calibrate_model",
     "CHROMOPHORES",
     "CONSTANTS",

@@ -18,6 +18,8 @@ import numpy as np
 from .._validate import SkinfitInputError
 from ..colorimetry import (
     DEFAULT_ILLUMINANT,
+    DARK_HAEMOGLOBIN_MAX,
+    DARK_MELANIN_MAX,
     HAEMOGLOBIN_MAX,
     MELANIN_MAX,
     ChartCalibration,
@@ -29,6 +31,7 @@ from ..colorimetry import (
 from ..io import read_image, read_mask
 from ..model import SkinModel, model_with_options, resolve_model
 from ..segmentation import FaceSegmentation, SegmentationUnavailable, segment_faces
+from ._face_blend import MODEL_DISCREPANCY, BlendEstimate, estimate_blends
 from ._image_calibration import calibrate
 from ._pixels import PixelStatus, fit_pixels, screen_pixels
 from ._spatial import neighbourhood_median, smooth_field
@@ -70,6 +73,8 @@ class ImageFit:
     skin_from: str = "model gamut"  # what chose the pixels fitted: "faces", "mask" or "model gamut"
     input_type: str = "photo"  # "photo" (shading free per pixel) or "albedo" (one shading scale)
     shading_scale: float | None = None  # the albedo capture's shading scale (input_type "albedo")
+    melanin_blend_sd: np.ndarray | None = None  # (h, w) posterior sd of the face's blend (None: the blend was given)
+    blends: tuple[dict, ...] = ()  # per face (or region) estimated: ``BlendEstimate.as_dict()``
 
     @property
     def model_name(self) -> str:
@@ -82,7 +87,7 @@ class ImageFit:
         return self.status == PixelStatus.SUCCESS
 
     MAP_NAMES = ("melanin", "melanin_blend", "haemoglobin", "shading", "residual_dE2000", "status", "melanin_se", "haemoglobin_se",
-                 "region")
+                 "region", "melanin_blend_sd")
 
     def maps(self) -> dict[str, np.ndarray]:
         return {name: getattr(self, name) for name in self.MAP_NAMES if getattr(self, name) is not None}
@@ -112,6 +117,7 @@ class ImageFit:
             "p95_dE2000": float(np.percentile(delta_e, 95)) if delta_e.size else float("nan"),
             # the blend of the fitted pixels (the map holds 0 where nothing was fitted)
             "melanin_blend": round(float(np.median(self.melanin_blend[fitted])), 6) if fitted.any() else float("nan"),
+            "blends": [dict(b) for b in self.blends],
             "white_balance": list(self.white_balance),
             "white_balance_sd": None if self.white_balance_sd is None else list(self.white_balance_sd),
             **({"colour_chart_matrix": self.colour_chart.matrix.tolist(),
@@ -136,6 +142,7 @@ def fit_image(
     *,
     melanin_blend: float | None = None,
     fit_blend: bool = False,
+    blend_regions=None,
     white_balance: str | bool | tuple[float, float, float] = "auto",
     input_space: str | None = None,
     mask=None,
@@ -156,9 +163,16 @@ def fit_image(
         image: a path (read through OpenImageIO, see ``skinfit.io``) or a linear sRGB array
             (h, w, 3).
         melanin_blend: beta_m for the whole image (three channels cannot carry it per pixel);
-            default: the population mean of the model's prior (0.42 for the calibrated model),
-            0.7 without a prior (DJ2006).
-        fit_blend: fit beta_m once for the whole image instead (``skinfit.fit``).
+            default None: estimated per face, pooled over its skin, with its uncertainty
+            (``skinfit.fit.estimate_blends``: measured in an albedo capture, mostly the population
+            prior's in a photo, whose width then widens the maps' standard errors); the faces are
+            the segmentation's, else ``blend_regions``, else the whole mask or image. A model
+            without a population prior on the blend (DJ2006), or ``prior=False``, takes the
+            prior's mean (DJ2006: 0.7) instead.
+        fit_blend: fit beta_m once for the whole image with the white balance instead
+            (``skinfit.fit.calibrate``; the population prior scores the blend).
+        blend_regions: (h, w) integer labels of the pixels that share a blend (a person each;
+            0: none): overrides the faces found, e.g. for a mosaic of several people.
         white_balance: ``"auto"`` (default) fits per-channel camera gains once for the image from
             its skin pixels under a camera prior of 15 % per channel (``skinfit.fit.calibrate``:
             photos and captures of unknown balance; the gains' standard errors go in
@@ -226,12 +240,14 @@ def fit_image(
     if segmentation not in ("faces", "none"):
         raise SkinfitInputError(f"segmentation must be 'faces' or 'none', got {segmentation!r}")
     region, faces, skin_from = None, None, "model gamut" if mask is None else "mask"
+    people = None  # (h, w) labels of the pixels that share a blend
     if mask is None and segmentation == "faces":
         found = _segment(rgb)
         if found is not None:
             faces = len(found.faces)
             if faces:
                 region, mask, skin_from = found.region, found.skin, "faces"
+                people = found.face_index
             else:
                 warnings.warn("no face found in the image: fitting every pixel, the skin model's gamut deciding what is skin "
                               "(give a mask, or segmentation='none' to silence this)", stacklevel=2)
@@ -247,6 +263,14 @@ def fit_image(
         rgb = chart.apply(rgb)
         if isinstance(white_balance, str) and white_balance == "auto":
             white_balance = "none"
+    if blend_regions is not None:
+        people = np.asarray(blend_regions)
+        if people.shape != rgb.shape[:2] or not np.issubdtype(people.dtype, np.integer):
+            raise SkinfitInputError(f"blend_regions must be integer labels of shape {rgb.shape[:2]}, got {people.dtype} {people.shape}")
+    # per face where a population prior on the blend can weigh it: without one (DJ2006, prior=False),
+    # blends that fit every colour (a photo's) cannot be chosen among, and the fit takes DJ2006's 0.7
+    blend_prior = model.prior is not None and "melanin_blend" in model.prior.names and options.get("prior") is not False
+    per_face = melanin_blend is None and not fit_blend and blend_prior
     if melanin_blend is None:
         melanin_blend = population_blend(model)
     if isinstance(white_balance, bool):
@@ -268,12 +292,56 @@ def fit_image(
         if gains.shape != (3,) or not np.all(gains > 0):
             raise SkinfitInputError(f"white_balance must be 'auto', 'none', 'chart' or three positive gains, got {white_balance}")
     options = dict(melanin_blend=melanin_blend, illuminant=illuminant, model=model, **options)
-    shading_scale = None
+    if input_type not in ("photo", "albedo"):
+        raise SkinfitInputError(f"input_type must be 'photo' or 'albedo', got {input_type!r}")
+    shading_scale, estimates = None, {}
     if input_type == "albedo":
         shading_scale = _albedo_shading_scale(rgb, gains, mask, options)
         options["shading_prior"] = (shading_scale, ALBEDO_SHADING_SD)
-    elif input_type != "photo":
-        raise SkinfitInputError(f"input_type must be 'photo' or 'albedo', got {input_type!r}")
+    if people is None:
+        people = np.ones(rgb.shape[:2], np.int16)
+    if per_face and input_type == "albedo":
+        # scale and blends together: the scale found at the population's blend is biased for faces
+        # far from it (and, with the blend free, the colours alone barely tell the scale)
+        shading_scale, estimates = _albedo_scale_and_blends(rgb, gains, mask, people, options, shading_scale)
+        if len({e.melanin_blend for e in estimates.values()}) == 1 and not any(e.dark_box for e in estimates.values()):
+            # one blend (one face): the scale again, finely, on the full table at it (the joint
+            # search's coarse grid and tables leave it ~3 % off), and the blend at that scale
+            blend = next(iter(estimates.values())).melanin_blend
+            shading_scale = _albedo_shading_scale(rgb, gains, mask, dict(options, melanin_blend=blend))
+            estimates = _face_blends(rgb, gains, mask, people, dict(options, shading_prior=(shading_scale, ALBEDO_SHADING_SD)))
+        options["shading_prior"] = (shading_scale, ALBEDO_SHADING_SD)
+    elif per_face:
+        estimates = _face_blends(rgb, gains, mask, people, options)
+    maps, field = None, None
+    dark = np.zeros(rgb.shape[:2], bool)  # the pixels fitted on the dark-skin box
+    for (blend, dark_box), where in _blend_groups(people, mask, estimates, melanin_blend):
+        group = dict(options, melanin_blend=blend)
+        if dark_box:
+            group["table"] = colour_table(blend, illuminant, DARK_MELANIN_MAX, DARK_HAEMOGLOBIN_MAX, model=model)
+            dark |= where
+        part, part_field = _fit_one_blend(rgb, gains, where, group, regularisation, progress)
+        if maps is None:
+            maps, field = part, np.array(part_field, dtype=float)
+        else:
+            for k, v in part.items():
+                maps[k][where] = v[where]
+            field[where] = part_field[where]
+    _classify(rgb, gains, maps, field, model, dark)
+    blend_sd = _honest_standard_errors(maps, people, estimates, model, options, regularisation, dark)
+    blend_sd = blend_sd if per_face else None
+    fitted = maps.pop("fitted_rgb")
+    if chart is not None:
+        fitted = chart.invert(fitted).astype(fitted.dtype)
+    return ImageFit(**maps, fitted_linear_rgb=fitted, seconds=time.perf_counter() - start, white_balance=tuple(float(g) for g in gains),
+                    model=model, colour_chart=chart, input_encoding=encoding, white_balance_sd=gains_sd, region=region, faces=faces,
+                    skin_from=skin_from, input_type=input_type, shading_scale=shading_scale, melanin_blend_sd=blend_sd,
+                    blends=tuple({"label": int(k), **e.as_dict()} for k, e in estimates.items()))
+
+
+def _fit_one_blend(rgb, gains, mask, options, regularisation, progress):
+    """The maps and shading field of the pixels ``mask`` at one blend: the first fit, the
+    branches chosen against the shading field, the spatial regularisation."""
     maps = _fit_in_bands(rgb, gains, mask, options, progress)
     if options.get("shading_reference") is None:
         field = _coherent_branches(rgb, gains, maps, options)
@@ -281,13 +349,102 @@ def fit_image(
         field = np.broadcast_to(np.asarray(options["shading_reference"], dtype=float), rgb.shape[:2])
     if REGULARISATION[regularisation] is not None and options.get("prior") is not False:
         _regularise(rgb, gains, maps, field, options, *REGULARISATION[regularisation])
-    _classify(rgb, gains, maps, field, model)
-    fitted = maps.pop("fitted_rgb")
-    if chart is not None:
-        fitted = chart.invert(fitted).astype(fitted.dtype)
-    return ImageFit(**maps, fitted_linear_rgb=fitted, seconds=time.perf_counter() - start, white_balance=tuple(float(g) for g in gains),
-                    model=model, colour_chart=chart, input_encoding=encoding, white_balance_sd=gains_sd, region=region, faces=faces,
-                    skin_from=skin_from, input_type=input_type, shading_scale=shading_scale)
+    return maps, field
+
+
+#: Fewest fittable pixels a face needs for a blend of its own; smaller ones take the population's.
+_MIN_FACE_PIXELS = 16
+
+
+def _face_blends(rgb, gains, mask, people, options) -> dict[int, BlendEstimate]:
+    """Each labelled face's blend (``estimate_blends``) from its fittable pixels."""
+    screened, _ = screen_pixels(rgb.reshape(-1, 3), mask, options.get("black_level", 1e-4), options.get("saturation_level", 0.999))
+    fittable = (screened == PixelStatus.SUCCESS).reshape(rgb.shape[:2])
+    labels = [int(k) for k in np.unique(people[fittable]) if k > 0]
+    faces = [rgb[fittable & (people == k)] for k in labels]
+    keep = [i for i, f in enumerate(faces) if len(f) >= _MIN_FACE_PIXELS]
+    if not keep:
+        return {}
+    found = estimate_blends([faces[i] for i in keep], model=options["model"], illuminant=options["illuminant"], white_balance=tuple(gains),
+                            shading_prior=options.get("shading_prior"), prior=options.get("prior"))
+    return {labels[i]: e for i, e in zip(keep, found)}
+
+
+#: ln of the shading scales tried, with the faces' blends free, about the first estimate.
+_JOINT_SCALE_GRID = np.linspace(np.log(0.6), np.log(1.6), 11)
+
+
+def _albedo_scale_and_blends(rgb, gains, mask, people, options, first_scale):
+    """The albedo capture's one scale and its faces' blends, jointly: for each scale of a grid
+    about ``first_scale``, every face's best blend score (``estimate_blends``); the scale of the
+    least sum over faces (refined by a parabola through the best three), then the faces' blends at it."""
+    totals = []
+    for log_scale in _JOINT_SCALE_GRID:
+        found = _face_blends(rgb, gains, mask, people, dict(options, shading_prior=(first_scale * np.exp(log_scale), ALBEDO_SHADING_SD)))
+        totals.append(sum(float(np.min(e.score)) for e in found.values()) if found else np.inf)
+    totals = np.array(totals)
+    if not np.isfinite(totals).any():
+        return first_scale, {}
+    best = int(np.clip(np.argmin(totals), 1, len(_JOINT_SCALE_GRID) - 2))
+    x, y = _JOINT_SCALE_GRID[best - 1 : best + 2], totals[best - 1 : best + 2]
+    curvature = y[0] - 2 * y[1] + y[2]
+    step = x[1] - x[0]
+    offset = 0.5 * step * (y[0] - y[2]) / curvature if curvature > 0 and np.all(np.isfinite(y)) else 0.0
+    scale = float(first_scale * np.exp(x[1] + np.clip(offset, -step, step)))
+    return scale, _face_blends(rgb, gains, mask, people, dict(options, shading_prior=(scale, ALBEDO_SHADING_SD)))
+
+
+def _blend_groups(people, mask, estimates, default_blend):
+    """((blend, dark box), pixels (h, w) bool) for each blend and box in use: the faces that share
+    them, and the pixels of no estimated face at ``default_blend`` on the default box; largest first."""
+    wanted = np.ones(people.shape, bool) if mask is None else np.asarray(mask) > 0
+    groups: dict[tuple[float, bool], np.ndarray] = {}
+    assigned = np.zeros(people.shape, bool)
+    for label, estimate in estimates.items():
+        where = wanted & (people == label)
+        key = (estimate.melanin_blend, estimate.dark_box)
+        groups[key] = groups.get(key, np.zeros(people.shape, bool)) | where
+        assigned |= where
+    rest = wanted & ~assigned
+    if rest.any() or not groups:
+        key = (float(default_blend), False)
+        groups[key] = groups.get(key, np.zeros(people.shape, bool)) | rest
+    return sorted(groups.items(), key=lambda item: -item[1].sum())
+
+
+def _honest_standard_errors(maps, people, estimates, model, options, regularisation, dark) -> np.ndarray:
+    """Turn the fit's standard errors (colour noise ``colour_noise``, priors as fitted) into ones that
+    hold the skin's value: in ln C, the colour's information at the model's discrepancy on real
+    skin (``MODEL_DISCREPANCY`` added to the noise), with the population prior but not the
+    neighbourhood's (the same face, not more evidence), and each face's blend uncertainty (the
+    slope d ln C / d beta at a fixed colour times the blend's sd), in quadrature. Sets the blend
+    map's sd and returns it (h, w)."""
+    blend_sd = np.zeros(maps["melanin"].shape, np.float32)
+    fitted = maps["status"] <= PixelStatus.OUT_OF_MODEL
+    noise = options.get("colour_noise", 0.003)
+    shrink = noise**2 / (noise**2 + MODEL_DISCREPANCY**2)  # the colour's information at the model's discrepancy
+    population = model.prior if options.get("prior") is not False else None
+    slopes = {"melanin": np.zeros(blend_sd.shape, np.float32), "haemoglobin": np.zeros(blend_sd.shape, np.float32)}
+    for label, estimate in estimates.items():
+        where = fitted & (people == label)
+        blend_sd[where] = estimate.sd
+        slopes["melanin"][where] = estimate.melanin_log_slope * estimate.sd
+        slopes["haemoglobin"][where] = estimate.haemoglobin_log_slope * estimate.sd
+    for name, top, dark_top in (("melanin", MELANIN_MAX, DARK_MELANIN_MAX), ("haemoglobin", HAEMOGLOBIN_MAX, DARK_HAEMOGLOBIN_MAX)):
+        top = np.where(dark[fitted], dark_top, top)
+        value, se = maps[name][fitted].astype(float), maps[f"{name}_se"][fitted].astype(float)
+        prior_precision = 0.0
+        if population is not None:
+            prior_precision = 1.0 / population.moments(name)[1] ** 2
+        fit_precision = prior_precision
+        if REGULARISATION[regularisation] is not None and population is not None:
+            fit_precision = fit_precision + 1.0 / REGULARISATION[regularisation][0] ** 2
+        with np.errstate(divide="ignore"):
+            colour = np.maximum(1.0 / np.maximum(se / np.maximum(value, 1e-12), 1e-12) ** 2 - fit_precision, 0.0) * shrink
+            log_se = np.sqrt(1.0 / (colour + prior_precision) + slopes[name][fitted].astype(float) ** 2)
+        # an unidentified value reports the whole box, as the fit's own standard errors do
+        maps[f"{name}_se"][fitted] = np.minimum(value * np.nan_to_num(log_se, nan=np.inf, posinf=np.inf), top)
+    return blend_sd
 
 
 #: Standard deviation of ln shading about the image's one scale for ``input_type="albedo"``: what
@@ -315,7 +472,7 @@ def _albedo_shading_scale(rgb, gains, mask, options, sample_size: int = 2048, tr
     three."""
     fittable = _fittable_pixels(rgb, mask, options)
     sample = fittable[np.random.default_rng(seed).choice(len(fittable), min(sample_size, len(fittable)), replace=False)]
-    base = {k: v for k, v in options.items() if k not in ("shading_reference", "prior_mean", "prior_sd")}
+    base = {k: v for k, v in options.items() if k not in ("shading_reference", "prior_mean", "prior_sd", "shading_prior")}
     base.update(white_balance=tuple(gains), progress=False, prior=False, lm_max_steps=0, max_straggler_rounds=8)
     free = fit_pixels(sample, **base)
     centre = float(np.median(free["shading"][free["status"] <= PixelStatus.OUT_OF_MODEL]))
@@ -484,13 +641,13 @@ _EXACT_DE = 0.15
 _EDGE_MARGIN = np.log(1.5)
 
 
-def skin_box(model: SkinModel) -> dict[str, tuple[float, float]]:
+def skin_box(model: SkinModel, melanin_max: float = MELANIN_MAX, haemoglobin_max: float = HAEMOGLOBIN_MAX) -> dict[str, tuple[float, float]]:
     """The melanin and haemoglobin that an image fit calls skin, ``{name: (low, high)}``: the
     colour table's box (up to ``MELANIN_MAX``, ``HAEMOGLOBIN_MAX``), narrowed by the model's
     population prior to within ``_IMPLAUSIBLE_Z`` of its standard deviations. A fit outside it
     is ``NOT_SKIN``; every colour of a skin inside it is
     fitted as skin (``benchmarks/fit_image_box.py``)."""
-    box = {"melanin": (0.0, MELANIN_MAX), "haemoglobin": (0.0, HAEMOGLOBIN_MAX)}
+    box = {"melanin": (0.0, melanin_max), "haemoglobin": (0.0, haemoglobin_max)}
     population = resolve_model(model).prior
     if population is None:
         return box
@@ -500,23 +657,26 @@ def skin_box(model: SkinModel) -> dict[str, tuple[float, float]]:
     return box
 
 
-def _classify(rgb, gains, maps, field, model):
+def _classify(rgb, gains, maps, field, model, dark=None):
     """Statuses of pixels that fit the model badly or implausibly: ``SPECULAR`` (the smooth local
     skin colour at no less than 80 % of the local shading plus a white component of at least 10 %
     of the pixel), ``NOT_SKIN`` (outside ``skin_box`` by more than two standard errors, at most
     ``_EDGE_MARGIN``, where the colour identifies the value; pinned at the box's top by a colour
     beyond it, or a shading 3x off the smooth field of its surroundings:
-    hair, brows, eyes).
+    hair, brows, eyes); ``dark`` (h, w): the pixels fitted on the dark-skin box, judged against it.
     Their maps are zeroed: a value no skin has is never presented as skin."""
 
     status = maps["status"]
-    box = skin_box(model)
+    dark = np.zeros(status.shape, bool) if dark is None else dark
+    box, dark_skin_box = skin_box(model), skin_box(model, DARK_MELANIN_MAX, DARK_HAEMOGLOBIN_MAX)
     implausible = np.zeros(status.shape, bool)
     # the colour reproduced: the margin beyond the box applies only there (a skin on the edge fits
     # exactly; a glint, skin plus white, fits as the lightest skin with a CIEDE2000 of 0.5)
     exact = maps["residual_dE2000"] <= _EXACT_DE
-    for name, top in (("melanin", MELANIN_MAX), ("haemoglobin", HAEMOGLOBIN_MAX)):
-        value, low, high = maps[name], *box[name]
+    for name, top, dark_top in (("melanin", MELANIN_MAX, DARK_MELANIN_MAX), ("haemoglobin", HAEMOGLOBIN_MAX, DARK_HAEMOGLOBIN_MAX)):
+        # each pixel against the box it was fitted on
+        value, top = maps[name], np.where(dark, dark_top, top)
+        low, high = np.where(dark, dark_skin_box[name][0], box[name][0]), np.where(dark, dark_skin_box[name][1], box[name][1])
         # outside the skin box, or pinned at the table's top by a colour beyond it (missed by more
         # than _EXACT_DE: a skin at the box's top fits exactly). Only a value the colour identifies
         # counts: one it does not (haemoglobin under heavy melanin: a standard error larger than the

@@ -66,10 +66,13 @@ class Face:
 
 @dataclasses.dataclass(frozen=True)
 class FaceSegmentation:
-    """The faces of a photo and its region map ((h, w) ``FaceRegion`` codes, uint8)."""
+    """The faces of a photo, its region map ((h, w) ``FaceRegion`` codes, uint8) and which face
+    each painted pixel belongs to (``face_index``: (h, w) int16, k + 1 for ``faces[k]``, 0 for
+    none): what a per-face quantity (the melanin blend) is pooled over."""
 
     faces: tuple[Face, ...]
     region: np.ndarray
+    face_index: np.ndarray | None = None
 
     @property
     def skin(self) -> np.ndarray:
@@ -113,7 +116,7 @@ def segment_faces(image: np.ndarray) -> FaceSegmentation:
     rows = np.minimum(np.arange(h) // factor, found.region.shape[0] - 1)  # nearest; the remainder as the edge
     cols = np.minimum(np.arange(w) // factor, found.region.shape[1] - 1)
     faces = tuple(dataclasses.replace(f, box=f.box * factor, landmarks=f.landmarks * factor) for f in found.faces)
-    return FaceSegmentation(faces, found.region[rows][:, cols])
+    return FaceSegmentation(faces, found.region[rows][:, cols], found.face_index[rows][:, cols])
 
 
 def _segment(image: np.ndarray) -> FaceSegmentation:
@@ -130,10 +133,11 @@ def _segment(image: np.ndarray) -> FaceSegmentation:
         mesh_box = np.array([points[:, 0].min(), points[:, 1].min(), points[:, 0].max(), points[:, 1].max()])
         if not any(_overlap(mesh_box, f.box) > _SAME_FACE for f in faces):
             faces.append(Face(mesh_box, float(score), presence, points))
-    region = np.zeros((h, w), np.uint8)
-    for face in sorted(faces, key=lambda f: f.box[2] - f.box[0]):  # nearer (larger) faces painted last
-        _paint_face(image, face, region)
-    return FaceSegmentation(tuple(faces), region)
+    region, face_index = np.zeros((h, w), np.uint8), np.zeros((h, w), np.int16)
+    order = sorted(range(len(faces)), key=lambda k: faces[k].box[2] - faces[k].box[0])
+    for k in order:  # nearer (larger) faces painted last
+        _paint_face(image, faces[k], region, face_index, k + 1)
+    return FaceSegmentation(tuple(faces), region, face_index)
 
 
 def _overlap(a: np.ndarray, b: np.ndarray) -> float:
@@ -143,8 +147,9 @@ def _overlap(a: np.ndarray, b: np.ndarray) -> float:
     return width * height / max(smaller, 1e-9)
 
 
-def _paint_face(image: np.ndarray, face: Face, region: np.ndarray) -> None:
-    """Write one face's regions into ``region``, within a window around it (room for ears, neck)."""
+def _paint_face(image: np.ndarray, face: Face, region: np.ndarray, face_index: np.ndarray, index: int) -> None:
+    """Write one face's regions into ``region`` and its ``index`` into ``face_index``, within a
+    window around it (room for ears, neck)."""
     h, w = region.shape
     x0, y0, x1, y1 = face.box
     fw, fh = x1 - x0, y1 - y0
@@ -194,6 +199,7 @@ def _paint_face(image: np.ndarray, face: Face, region: np.ndarray) -> None:
     local[mouth] = FaceRegion.MOUTH
     painted = local > 0
     region[top:bottom, left:right][painted] = local[painted]
+    face_index[top:bottom, left:right][painted] = index
 
 
 def _ycbcr(rgb: np.ndarray) -> np.ndarray:
