@@ -94,43 +94,55 @@ def summarise(fit, mask, patches, spectral) -> dict:
             "shading_scale": fit.shading_scale}
 
 
+def groups(archive) -> list[str]:
+    """The population groups with cheek spectra."""
+    return sorted({r["ethnic_group"] for r in archive.records if r["body_site"] == "cheek"})
+
+
+def measure_group(archive, group: str, limit: int) -> dict:
+    """One group's row: up to ``limit`` people fitted as spectra, rendered as albedo patches and
+    fitted as a photo and as an albedo capture (see the module docstring)."""
+    spectra = people(archive, group, limit)
+    fitted = skinfit.fit_spectra(WAVELENGTHS, spectra, progress=False, **MEASUREMENT)
+    spectral = np.asarray(fitted.parameters["melanin"])
+    # an albedo capture sees no surface reflection: the measured (SCI) spectrum less the spectral
+    # fit's own estimate of its specular part (the fitted SCI spectrum less its diffuse part;
+    # ~0.03 in the blue, two thirds of a dark cheek's reflectance there)
+    diffuse = np.asarray(skinfit.diffuse_reflectance(fitted.skin_params(), WAVELENGTHS))
+    albedo = np.clip(spectra - (np.asarray(fitted.fitted) - diffuse), 0.0, None)
+    image, mask, patches = render_patches(albedo)
+    labels = np.zeros(mask.shape, np.int16)
+    for k, where in enumerate(patches):
+        labels[where] = k + 1
+    measured, modelled = colour_science_linear_srgb(spectra, WAVELENGTHS), colour_science_linear_srgb(np.asarray(fitted.fitted), WAVELENGTHS)
+    discrepancy = np.linalg.norm(measured - modelled, axis=-1) / np.linalg.norm(measured, axis=-1)
+    blend = np.asarray(fitted.parameters["melanin_blend"])
+    row = {"people": len(spectra), "spectral_melanin_median": float(np.median(spectral)),
+           "spectral_blend_median": float(np.median(blend)),
+           "spectral_blend_on_a_bound": float(np.mean((blend <= 1e-3) | (blend >= 1 - 1e-3))),
+           "specular_part_at_450nm_median": float(np.median((np.asarray(fitted.fitted) - diffuse)[:, 5])),
+           "model_colour_discrepancy_median": float(np.median(discrepancy)),
+           "model_colour_discrepancy_p90": float(np.percentile(discrepancy, 90))}
+    for input_type in ("photo", "albedo"):
+        fit = skinfit.fit_image(image, mask=mask, white_balance="none", input_type=input_type, blend_regions=labels, progress=False)
+        row[input_type] = summarise(fit, mask, patches, spectral)
+        image_blend = np.array([b["melanin_blend"] for b in sorted(fit.blends, key=lambda b: b["label"])])
+        row[input_type].update(seconds=fit.seconds, image_blend_median=float(np.median(image_blend)),
+                               image_blend_sd_median=float(np.median([b["sd"] for b in fit.blends])),
+                               dark_box_people=int(sum(b["dark_box"] for b in fit.blends)),
+                               blend_abs_error_median=float(np.median(np.abs(image_blend - blend))) if len(image_blend) == len(blend) else None)
+    return row
+
+
 def main(argv=None):
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--people", type=int, default=64)
     parser.add_argument("--out", default="benchmarks/results")
     args = parser.parse_args(argv)
     archive = skinfit.read_issa(ISSA)
-    groups = sorted({r["ethnic_group"] for r in archive.records if r["body_site"] == "cheek"})
     result = {**provenance(), "people_per_group": args.people, "groups": {}}
-    for group in groups:
-        spectra = people(archive, group, args.people)
-        fitted = skinfit.fit_spectra(WAVELENGTHS, spectra, progress=False, **MEASUREMENT)
-        spectral = np.asarray(fitted.parameters["melanin"])
-        # an albedo capture sees no surface reflection: the measured (SCI) spectrum less the spectral
-        # fit's own estimate of its specular part (the fitted SCI spectrum less its diffuse part;
-        # ~0.03 in the blue, two thirds of a dark cheek's reflectance there)
-        diffuse = np.asarray(skinfit.diffuse_reflectance(fitted.skin_params(), WAVELENGTHS))
-        albedo = np.clip(spectra - (np.asarray(fitted.fitted) - diffuse), 0.0, None)
-        image, mask, patches = render_patches(albedo)
-        labels = np.zeros(mask.shape, np.int16)
-        for k, where in enumerate(patches):
-            labels[where] = k + 1
-        measured, modelled = colour_science_linear_srgb(spectra, WAVELENGTHS), colour_science_linear_srgb(np.asarray(fitted.fitted), WAVELENGTHS)
-        discrepancy = np.linalg.norm(measured - modelled, axis=-1) / np.linalg.norm(measured, axis=-1)
-        blend = np.asarray(fitted.parameters["melanin_blend"])
-        row = {"people": len(spectra), "spectral_melanin_median": float(np.median(spectral)),
-               "spectral_blend_median": float(np.median(blend)),
-               "spectral_blend_on_a_bound": float(np.mean((blend <= 1e-3) | (blend >= 1 - 1e-3))),
-               "specular_part_at_450nm_median": float(np.median((np.asarray(fitted.fitted) - diffuse)[:, 5])),
-               "model_colour_discrepancy_median": float(np.median(discrepancy)),
-               "model_colour_discrepancy_p90": float(np.percentile(discrepancy, 90))}
-        for input_type in ("photo", "albedo"):
-            fit = skinfit.fit_image(image, mask=mask, white_balance="none", input_type=input_type, blend_regions=labels, progress=False)
-            row[input_type] = summarise(fit, mask, patches, spectral)
-            image_blend = np.array([b["melanin_blend"] for b in sorted(fit.blends, key=lambda b: b["label"])])
-            row[input_type].update(seconds=fit.seconds, image_blend_median=float(np.median(image_blend)),
-                                   image_blend_sd_median=float(np.median([b["sd"] for b in fit.blends])),
-                                   blend_abs_error_median=float(np.median(np.abs(image_blend - blend))) if len(image_blend) == len(blend) else None)
+    for group in groups(archive):
+        row = measure_group(archive, group, args.people)
         result["groups"][group] = row
         print(group, json.dumps(row))
     out = Path(args.out)

@@ -24,7 +24,8 @@
 # `white balance x shading x (the calibrated model's reflectance through the CIE 1931 observer under D65)`.
 # Three channels carry three unknowns per pixel: melanin, haemoglobin and shading. What a face shares is
 # fitted once: the white balance (camera gains, from the face's skin, within a camera prior of 15 % per
-# channel) and the melanin blend (the population's mean). Per pixel the fit is a MAP estimate under the
+# channel) and the melanin blend (per face: measured in an albedo capture; in a photo, whose shading is free,
+# mostly the population's, with its uncertainty carried into the melanin's standard errors). Per pixel the fit is a MAP estimate under the
 # calibrated model's population prior, the fold of the colour map (two parameter sets, one colour) is
 # resolved against the smooth shading of the neighbourhood, and a light edge-preserving prior ties each pixel
 # to its neighbourhood's median.

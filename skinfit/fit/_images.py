@@ -385,12 +385,7 @@ def _albedo_scale_and_blends(rgb, gains, mask, people, options, first_scale):
     totals = np.array(totals)
     if not np.isfinite(totals).any():
         return first_scale, {}
-    best = int(np.clip(np.argmin(totals), 1, len(_JOINT_SCALE_GRID) - 2))
-    x, y = _JOINT_SCALE_GRID[best - 1 : best + 2], totals[best - 1 : best + 2]
-    curvature = y[0] - 2 * y[1] + y[2]
-    step = x[1] - x[0]
-    offset = 0.5 * step * (y[0] - y[2]) / curvature if curvature > 0 and np.all(np.isfinite(y)) else 0.0
-    scale = float(first_scale * np.exp(x[1] + np.clip(offset, -step, step)))
+    scale = float(first_scale * np.exp(_parabola_minimum(_JOINT_SCALE_GRID, totals)))
     return scale, _face_blends(rgb, gains, mask, people, dict(options, shading_prior=(scale, ALBEDO_SHADING_SD)))
 
 
@@ -483,13 +478,18 @@ def _albedo_shading_scale(rgb, gains, mask, options, sample_size: int = 2048, tr
         residual = np.sort(residual[fit["status"] <= PixelStatus.OUT_OF_MODEL] ** 2)
         return float(np.mean(residual[: max(1, int(trim * residual.size))])) if residual.size else np.inf
 
-    scores = np.array([score(x) for x in _SCALE_GRID])
-    best = int(np.clip(np.argmin(scores), 1, len(_SCALE_GRID) - 2))
-    x, y = _SCALE_GRID[best - 1 : best + 2], scores[best - 1 : best + 2]
+    return float(centre * np.exp(_parabola_minimum(_SCALE_GRID, np.array([score(x) for x in _SCALE_GRID]))))
+
+
+def _parabola_minimum(grid: np.ndarray, values: np.ndarray) -> float:
+    """The minimum of ``values`` on an even ``grid``, refined by a parabola through the best point and
+    its neighbours (at most one step off it; the best interior point where the parabola is not convex)."""
+    best = int(np.clip(np.argmin(values), 1, len(grid) - 2))
+    x, y = grid[best - 1 : best + 2], values[best - 1 : best + 2]
     curvature = y[0] - 2 * y[1] + y[2]
     step = x[1] - x[0]
-    offset = 0.5 * step * (y[0] - y[2]) / curvature if curvature > 0 else 0.0
-    return float(centre * np.exp(x[1] + np.clip(offset, -step, step)))
+    offset = 0.5 * step * (y[0] - y[2]) / curvature if curvature > 0 and np.all(np.isfinite(y)) else 0.0
+    return float(x[1] + np.clip(offset, -step, step))
 
 
 def _segment(rgb: np.ndarray) -> FaceSegmentation | None:
