@@ -300,19 +300,20 @@ def fit_image(
         options["shading_prior"] = (shading_scale, ALBEDO_SHADING_SD)
     if people is None:
         people = np.ones(rgb.shape[:2], np.int16)
+    faces_pixels = _face_pixels(rgb, mask, people, options) if per_face else {}
     if per_face and input_type == "albedo":
         # scale and blends together: the scale found at the population's blend is biased for faces
         # far from it (and, with the blend free, the colours alone barely tell the scale)
-        shading_scale, estimates = _albedo_scale_and_blends(rgb, gains, mask, people, options, shading_scale)
+        shading_scale, estimates = _albedo_scale_and_blends(faces_pixels, gains, options, shading_scale)
         if len({e.melanin_blend for e in estimates.values()}) == 1 and not any(e.dark_box for e in estimates.values()):
             # one blend (one face): the scale again, finely, on the full table at it (the joint
             # search's coarse grid and tables leave it ~3 % off), and the blend at that scale
             blend = next(iter(estimates.values())).melanin_blend
             shading_scale = _albedo_shading_scale(rgb, gains, mask, dict(options, melanin_blend=blend))
-            estimates = _face_blends(rgb, gains, mask, people, dict(options, shading_prior=(shading_scale, ALBEDO_SHADING_SD)))
+            estimates = _face_blends(faces_pixels, gains, dict(options, shading_prior=(shading_scale, ALBEDO_SHADING_SD)))
         options["shading_prior"] = (shading_scale, ALBEDO_SHADING_SD)
     elif per_face:
-        estimates = _face_blends(rgb, gains, mask, people, options)
+        estimates = _face_blends(faces_pixels, gains, options)
     maps, field = None, None
     dark = np.zeros(rgb.shape[:2], bool)  # the pixels fitted on the dark-skin box
     for (blend, dark_box), where in _blend_groups(people, mask, estimates, melanin_blend):
@@ -356,37 +357,39 @@ def _fit_one_blend(rgb, gains, mask, options, regularisation, progress):
 _MIN_FACE_PIXELS = 16
 
 
-def _face_blends(rgb, gains, mask, people, options) -> dict[int, BlendEstimate]:
-    """Each labelled face's blend (``estimate_blends``) from its fittable pixels."""
-    screened, _ = screen_pixels(rgb.reshape(-1, 3), mask, options.get("black_level", 1e-4), options.get("saturation_level", 0.999))
-    fittable = (screened == PixelStatus.SUCCESS).reshape(rgb.shape[:2])
-    labels = [int(k) for k in np.unique(people[fittable]) if k > 0]
-    faces = [rgb[fittable & (people == k)] for k in labels]
-    keep = [i for i, f in enumerate(faces) if len(f) >= _MIN_FACE_PIXELS]
-    if not keep:
+def _face_pixels(rgb, mask, people, options) -> dict[int, np.ndarray]:
+    """Each labelled face's fittable pixels (n_k, 3), for faces of at least ``_MIN_FACE_PIXELS``."""
+    fittable = _fittable(rgb, mask, options)
+    faces = {int(k): rgb[fittable & (people == k)] for k in np.unique(people[fittable]) if k > 0}
+    return {k: f for k, f in faces.items() if len(f) >= _MIN_FACE_PIXELS}
+
+
+def _face_blends(faces: dict[int, np.ndarray], gains, options) -> dict[int, BlendEstimate]:
+    """Each face's blend (``estimate_blends``) from its pixels (``_face_pixels``)."""
+    if not faces:
         return {}
-    found = estimate_blends([faces[i] for i in keep], model=options["model"], illuminant=options["illuminant"], white_balance=tuple(gains),
+    found = estimate_blends(list(faces.values()), model=options["model"], illuminant=options["illuminant"], white_balance=tuple(gains),
                             shading_prior=options.get("shading_prior"), prior=options.get("prior"))
-    return {labels[i]: e for i, e in zip(keep, found)}
+    return dict(zip(faces, found))
 
 
 #: ln of the shading scales tried, with the faces' blends free, about the first estimate.
 _JOINT_SCALE_GRID = np.linspace(np.log(0.6), np.log(1.6), 11)
 
 
-def _albedo_scale_and_blends(rgb, gains, mask, people, options, first_scale):
+def _albedo_scale_and_blends(faces, gains, options, first_scale):
     """The albedo capture's one scale and its faces' blends, jointly: for each scale of a grid
     about ``first_scale``, every face's best blend score (``estimate_blends``); the scale of the
     least sum over faces (refined by a parabola through the best three), then the faces' blends at it."""
     totals = []
     for log_scale in _JOINT_SCALE_GRID:
-        found = _face_blends(rgb, gains, mask, people, dict(options, shading_prior=(first_scale * np.exp(log_scale), ALBEDO_SHADING_SD)))
+        found = _face_blends(faces, gains, dict(options, shading_prior=(first_scale * np.exp(log_scale), ALBEDO_SHADING_SD)))
         totals.append(sum(float(np.min(e.score)) for e in found.values()) if found else np.inf)
     totals = np.array(totals)
     if not np.isfinite(totals).any():
         return first_scale, {}
     scale = float(first_scale * np.exp(_parabola_minimum(_JOINT_SCALE_GRID, totals)))
-    return scale, _face_blends(rgb, gains, mask, people, dict(options, shading_prior=(scale, ALBEDO_SHADING_SD)))
+    return scale, _face_blends(faces, gains, dict(options, shading_prior=(scale, ALBEDO_SHADING_SD)))
 
 
 def _blend_groups(people, mask, estimates, default_blend):
@@ -450,14 +453,18 @@ ALBEDO_SHADING_SD = 0.05
 _SCALE_GRID = np.linspace(np.log(0.4), np.log(2.5), 22)
 
 
+def _fittable(rgb, mask, options) -> np.ndarray:
+    """(h, w) bool: the pixels that a fit would take: not black, saturated, masked or invalid."""
+    screened, _ = screen_pixels(rgb.reshape(-1, 3), mask, options.get("black_level", 1e-4), options.get("saturation_level", 0.999))
+    return (screened == PixelStatus.SUCCESS).reshape(rgb.shape[:2])
+
+
 def _fittable_pixels(rgb, mask, options) -> np.ndarray:
-    """The pixels (n, 3) that a fit would take: not black, saturated, masked or invalid."""
-    pixels = rgb.reshape(-1, 3)
-    screened, _ = screen_pixels(pixels, mask, options.get("black_level", 1e-4), options.get("saturation_level", 0.999))
-    fittable = screened == PixelStatus.SUCCESS
+    """The pixels (n, 3) that a fit would take."""
+    fittable = _fittable(rgb, mask, options)
     if not fittable.any():
         raise SkinfitInputError("no pixel of the image can be fitted (all black, saturated, masked or invalid)")
-    return pixels[fittable]
+    return rgb[fittable]
 
 
 def _albedo_shading_scale(rgb, gains, mask, options, sample_size: int = 2048, trim: float = 0.8, seed: int = 0) -> float:
