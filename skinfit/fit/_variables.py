@@ -121,15 +121,21 @@ def from_unbounded(name: str, u):
 
 def prior_coordinate(name: str, value):
     """The coordinate in which a prior on ``name`` is Gaussian: log, logit of the range fraction, or
-    the value itself; finite inside the range (values are floored 1e-9 of the range from a bound)."""
+    the value itself. Finite at the bounds and differentiable everywhere: the fraction is squeezed
+    affinely by 1e-9 of the range (a clip there would zero the prior's gradient, and a fit that the
+    data push to a bound would then stay on it, unopposed)."""
     var = VARIABLES[name]
     xp = jnp if isinstance(value, jax.Array) else np
+    span = var.high - var.low
     if var.prior == "log":
-        return xp.log(xp.maximum(value, 1e-9 * (var.high - var.low)))
+        return xp.log(xp.maximum(value, 0.0) + _PRIOR_FLOOR * span)
     if var.prior == "logit":
-        f = xp.clip((value - var.low) / (var.high - var.low), 1e-9, 1.0 - 1e-9)
+        f = _PRIOR_FLOOR + (1.0 - 2.0 * _PRIOR_FLOOR) * xp.clip((value - var.low) / span, 0.0, 1.0)
         return xp.log(f) - xp.log1p(-f)
     return value
+
+
+_PRIOR_FLOOR = 1e-9
 
 
 class MeasurementModel(eqx.Module):
