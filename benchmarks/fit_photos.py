@@ -11,7 +11,7 @@ statistics over the face-skin region), and, each with its mask:
   ``tests/data/``; and, where ``../shared/data/face-albedo/`` exists, the 0.4 MP original. Its mask is
   a head mask: it holds hair, brows, closed eyes, lips and some background as well as skin.
 
-Per input, with ``fit_image``'s defaults (calibrated model, white balance fitted, population prior,
+Per input, the time of each stage of the second call (``ImageFit.stage_seconds``). Per input, with ``fit_image``'s defaults (calibrated model, white balance fitted, population prior,
 light regularisation): seconds per megapixel of a second call (compiled, colour table built), the
 first call, the share of the mask ``SUCCESS``, CIEDE2000 over the whole mask (every pixel the fit
 wrote), the share of skin pixels whose melanin is off its 3 x 3 median by a factor 2, and the skin's
@@ -96,6 +96,7 @@ def measure(rgb, mask) -> dict:
         "white_balance_sd": fit.white_balance_sd,
         "faces": faces,
         "melanin_blend": fit.summary()["melanin_blend"],
+        "stage_s": {**fit.stage_seconds, "other": seconds - sum(fit.stage_seconds.values())},
     }
 
 
@@ -195,6 +196,15 @@ def markdown(record) -> str:
             f"{100 * r['melanin_speckle_fraction']:.2f} % | {r['melanin_median']:.3f} / {r['haemoglobin_median']:.4f} | {gains} | "
             f"{r['s_per_megapixel']:.1f} ({r['first_call_s']:.0f} s) | {r['speedup_vs_scipy']:.0f} |"
         )
+    stages = [k for r in record["inputs"].values() for k in r.get("stage_s", {})]
+    stages = list(dict.fromkeys(stages))
+    if stages:
+        lines += ["", "Where the time goes (the same compiled calls; seconds per stage, `ImageFit.stage_seconds`; "
+                      "\"other\": reading arrays, masks, band bookkeeping):", "",
+                  "| input | " + " | ".join(stages) + " | total |", "|---|" + "---|" * (len(stages) + 1)]
+        for name, r in record["inputs"].items():
+            cells = [f"{r['stage_s'].get(k, 0.0):.2f}" for k in stages]
+            lines.append(f"| {name} | " + " | ".join(cells) + f" | {r['s']:.2f} |")
     memory = record.get("peak_memory_default_settings")
     if memory and "peak_rss_gib" in memory:
         lines += ["", f"4096×4096 (the capture tiled) through `skinfit fit-image` with the defaults in a fresh process: peak resident "

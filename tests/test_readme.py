@@ -58,21 +58,8 @@ def _constant(constants, dotted):
 
 
 # every generated table of the README and the docs: <!-- marker:start --> ... <!-- marker:end -->
-# holds exactly the results file its benchmark wrote
-GENERATED_BLOCKS = [
-    ("bench", "pareto/summary.md"),
-    ("calibration", "calibration_summary.md"),
-    ("calibration-methods", "calibration_methods.md"),
-    ("fit-measured", "fit_measured.md"),
-    ("fit-photos", "fit_photos.md"),
-    ("fit-image-tones", "fit_image_tones.md"),
-    ("renderers", "renderers.md"),
-    ("forward-model", "forward_model.md"),
-    ("fit-image", "fit_image.md"),
-    ("transport-fit", "transport_fit.md"),
-    ("fit-realistic", "fit_realistic.md"),
-    ("profile-fits", "profile_fits.md"),
-]
+# holds exactly the results file its benchmark wrote (python -m benchmarks.sync_docs copies them in)
+from benchmarks.sync_docs import GENERATED_BLOCKS  # noqa: E402
 
 
 @pytest.mark.parametrize("marker, results_file", GENERATED_BLOCKS, ids=[m for m, _ in GENERATED_BLOCKS])

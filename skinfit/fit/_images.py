@@ -9,6 +9,7 @@ of rows, so memory stays bounded.
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 import time
 import warnings
@@ -75,6 +76,7 @@ class ImageFit:
     shading_scale: float | None = None  # the albedo capture's shading scale (input_type "albedo")
     melanin_blend_sd: np.ndarray | None = None  # (h, w) posterior sd of the face's blend (None: the blend was given)
     blends: tuple[dict, ...] = ()  # per face (or region) estimated: ``BlendEstimate.as_dict()``
+    stage_seconds: dict[str, float] = dataclasses.field(default_factory=dict)  # wall time of each stage of the fit
 
     @property
     def model_name(self) -> str:
@@ -129,7 +131,23 @@ class ImageFit:
             "faces": self.faces,
             "model": self.model_name,
             "seconds": self.seconds,
+            "stage_seconds": dict(self.stage_seconds),
         }
+
+
+class _Stages:
+    """Wall time of the named stages of one fit, summed over repeats (a stage per blend group)."""
+
+    def __init__(self):
+        self.seconds: dict[str, float] = {}
+
+    @contextlib.contextmanager
+    def __call__(self, name: str):
+        start = time.perf_counter()
+        try:
+            yield
+        finally:
+            self.seconds[name] = self.seconds.get(name, 0.0) + time.perf_counter() - start
 
 
 #: Spatial regularisation of ln C_m and ln C_h (``fit_image(regularisation=...)``): the standard
@@ -217,13 +235,14 @@ def fit_image(
     """
 
 
-    start = time.perf_counter()
+    start, stage = time.perf_counter(), _Stages()
     model = model_with_options(model, method=method)
     if regularisation not in REGULARISATION:
         raise SkinfitInputError(f"regularisation must be one of {', '.join(REGULARISATION)}, got {regularisation!r}")
     alpha, encoding = None, "linear sRGB array"
     if _is_path(image):
-        rgb, alpha, encoding = read_image(image, input_space)
+        with stage("read"):
+            rgb, alpha, encoding = read_image(image, input_space)
         rgb = rgb.astype(np.float32)  # a file holds no more (float, half or integer): half the memory of a 4096^2 image
     else:
         rgb = np.asarray(image, dtype=float)
@@ -242,7 +261,8 @@ def fit_image(
     region, faces, skin_from = None, None, "model gamut" if mask is None else "mask"
     people = None  # (h, w) labels of the pixels that share a blend
     if mask is None and segmentation == "faces":
-        found = _segment(rgb)
+        with stage("segmentation"):
+            found = _segment(rgb)
         if found is not None:
             faces = len(found.faces)
             if faces:
@@ -278,10 +298,11 @@ def fit_image(
     gains, gains_sd = np.ones(3), None
     if fit_blend or (isinstance(white_balance, str) and white_balance == "auto"):
 
-        calibration = calibrate(
-            _fittable_pixels(rgb, mask, options), melanin_blend=None if fit_blend else melanin_blend, white_balance=white_balance == "auto",
-            illuminant=illuminant, model=model, colour_noise=options.get("colour_noise", 0.003), prior=options.get("prior"),
-        )
+        with stage("white balance"):
+            calibration = calibrate(
+                _fittable_pixels(rgb, mask, options), melanin_blend=None if fit_blend else melanin_blend, white_balance=white_balance == "auto",
+                illuminant=illuminant, model=model, colour_noise=options.get("colour_noise", 0.003), prior=options.get("prior"),
+            )
         melanin_blend, gains = calibration.melanin_blend, np.asarray(calibration.white_balance)
         gains_sd = calibration.white_balance_sd if white_balance == "auto" else None
     elif isinstance(white_balance, str):
@@ -295,25 +316,26 @@ def fit_image(
     if input_type not in ("photo", "albedo"):
         raise SkinfitInputError(f"input_type must be 'photo' or 'albedo', got {input_type!r}")
     shading_scale, estimates = None, {}
-    if input_type == "albedo":
-        shading_scale = _albedo_shading_scale(rgb, gains, mask, options)
-        options["shading_prior"] = (shading_scale, ALBEDO_SHADING_SD)
-    if people is None:
-        people = np.ones(rgb.shape[:2], np.int16)
-    faces_pixels = _face_pixels(rgb, mask, people, options) if per_face else {}
-    if per_face and input_type == "albedo":
-        # scale and blends together: the scale found at the population's blend is biased for faces
-        # far from it (and, with the blend free, the colours alone barely tell the scale)
-        shading_scale, estimates = _albedo_scale_and_blends(faces_pixels, gains, options, shading_scale)
-        if len({e.melanin_blend for e in estimates.values()}) == 1 and not any(e.dark_box for e in estimates.values()):
-            # one blend (one face): the scale again, finely, on the full table at it (the joint
-            # search's coarse grid and tables leave it ~3 % off), and the blend at that scale
-            blend = next(iter(estimates.values())).melanin_blend
-            shading_scale = _albedo_shading_scale(rgb, gains, mask, dict(options, melanin_blend=blend))
-            estimates = _face_blends(faces_pixels, gains, dict(options, shading_prior=(shading_scale, ALBEDO_SHADING_SD)))
-        options["shading_prior"] = (shading_scale, ALBEDO_SHADING_SD)
-    elif per_face:
-        estimates = _face_blends(faces_pixels, gains, options)
+    with stage("blends and albedo scale"):
+        if input_type == "albedo":
+            shading_scale = _albedo_shading_scale(rgb, gains, mask, options)
+            options["shading_prior"] = (shading_scale, ALBEDO_SHADING_SD)
+        if people is None:
+            people = np.ones(rgb.shape[:2], np.int16)
+        faces_pixels = _face_pixels(rgb, mask, people, options) if per_face else {}
+        if per_face and input_type == "albedo":
+            # scale and blends together: the scale found at the population's blend is biased for faces
+            # far from it (and, with the blend free, the colours alone barely tell the scale)
+            shading_scale, estimates = _albedo_scale_and_blends(faces_pixels, gains, options, shading_scale)
+            if len({e.melanin_blend for e in estimates.values()}) == 1 and not any(e.dark_box for e in estimates.values()):
+                # one blend (one face): the scale again, finely, on the full table at it (the joint
+                # search's coarse grid and tables leave it ~3 % off), and the blend at that scale
+                blend = next(iter(estimates.values())).melanin_blend
+                shading_scale = _albedo_shading_scale(rgb, gains, mask, dict(options, melanin_blend=blend))
+                estimates = _face_blends(faces_pixels, gains, dict(options, shading_prior=(shading_scale, ALBEDO_SHADING_SD)))
+            options["shading_prior"] = (shading_scale, ALBEDO_SHADING_SD)
+        elif per_face:
+            estimates = _face_blends(faces_pixels, gains, options)
     maps, field = None, None
     dark = np.zeros(rgb.shape[:2], bool)  # the pixels fitted on the dark-skin box
     for (blend, dark_box), where in _blend_groups(people, mask, estimates, melanin_blend):
@@ -321,15 +343,17 @@ def fit_image(
         if dark_box:
             group["table"] = colour_table(blend, illuminant, DARK_MELANIN_MAX, DARK_HAEMOGLOBIN_MAX, model=model)
             dark |= where
-        part, part_field = _fit_one_blend(rgb, gains, where, group, regularisation, progress)
+        part, part_field = _fit_one_blend(rgb, gains, where, group, regularisation, progress, stage)
         if maps is None:
             maps, field = part, np.array(part_field, dtype=float)
         else:
             for k, v in part.items():
                 maps[k][where] = v[where]
             field[where] = part_field[where]
-    _classify(rgb, gains, maps, field, model, dark)
-    blend_sd = _honest_standard_errors(maps, people, estimates, model, options, regularisation, dark)
+    with stage("statuses"):
+        _classify(rgb, gains, maps, field, model, dark)
+    with stage("standard errors"):
+        blend_sd = _honest_standard_errors(maps, people, estimates, model, options, regularisation, dark)
     blend_sd = blend_sd if per_face else None
     fitted = maps.pop("fitted_rgb")
     if chart is not None:
@@ -337,19 +361,22 @@ def fit_image(
     return ImageFit(**maps, fitted_linear_rgb=fitted, seconds=time.perf_counter() - start, white_balance=tuple(float(g) for g in gains),
                     model=model, colour_chart=chart, input_encoding=encoding, white_balance_sd=gains_sd, region=region, faces=faces,
                     skin_from=skin_from, input_type=input_type, shading_scale=shading_scale, melanin_blend_sd=blend_sd,
-                    blends=tuple({"label": int(k), **e.as_dict()} for k, e in estimates.items()))
+                    blends=tuple({"label": int(k), **e.as_dict()} for k, e in estimates.items()), stage_seconds=stage.seconds)
 
 
-def _fit_one_blend(rgb, gains, mask, options, regularisation, progress):
+def _fit_one_blend(rgb, gains, mask, options, regularisation, progress, stage):
     """The maps and shading field of the pixels ``mask`` at one blend: the first fit, the
-    branches chosen against the shading field, the spatial regularisation."""
-    maps = _fit_in_bands(rgb, gains, mask, options, progress)
-    if options.get("shading_reference") is None:
-        field = _coherent_branches(rgb, gains, maps, options)
-    else:
-        field = np.broadcast_to(np.asarray(options["shading_reference"], dtype=float), rgb.shape[:2])
+    branches chosen against the shading field, the spatial regularisation (timed by ``stage``)."""
+    with stage("first fit"):
+        maps = _fit_in_bands(rgb, gains, mask, options, progress)
+    with stage("branches against the shading field"):
+        if options.get("shading_reference") is None:
+            field = _coherent_branches(rgb, gains, maps, options)
+        else:
+            field = np.broadcast_to(np.asarray(options["shading_reference"], dtype=float), rgb.shape[:2])
     if REGULARISATION[regularisation] is not None and options.get("prior") is not False:
-        _regularise(rgb, gains, maps, field, options, *REGULARISATION[regularisation])
+        with stage("regularised refit"):
+            _regularise(rgb, gains, maps, field, options, *REGULARISATION[regularisation])
     return maps, field
 
 
