@@ -531,15 +531,21 @@ def _solve(table, target, prior, steps, straggler_steps, max_rounds, lm_max_step
 
     # a colour this far from the model after the first steps is outside the gamut (hair, cloth,
     # background): it will be OUT_OF_MODEL whatever its last digits, and polishing it would take
-    # most of a real photo's time (such colours converge only linearly)
-    moving = np.flatnonzero((remaining > step_tol) & (residual <= _HOPELESS_RESIDUAL))
+    # most of a real photo's time (such colours converge only linearly). Not so under a shading
+    # prior (an albedo capture): the start ignores it, and a skin colour whose free-shading fit lies
+    # far from the prior's shading starts with a high cost and descends; such a pixel goes on while
+    # its cost keeps falling.
+    pulled = prior[:, 5] > 0
+    moving = np.flatnonzero((remaining > step_tol) & ((residual <= _HOPELESS_RESIDUAL) | pulled))
     for _ in range(max_rounds):  # gathered, so that converged pixels cost nothing more
         if not moving.size:
             break
+        before = residual[moving]
         more = map_batches(spline(straggler_steps), (target[moving], roots[moving], damping[moving], prior[moving]), _SUBSET_CHUNK)
         for full, part in zip(out, more):
             full[moving] = part
-        moving = moving[remaining[moving] > step_tol]
+        descending = residual[moving] < _DESCENDING * before
+        moving = moving[(remaining[moving] > step_tol) & ((residual[moving] <= _HOPELESS_RESIDUAL) | descending)]
     moving = moving[residual[moving] <= _HOPELESS_RESIDUAL]
     if moving.size and lm_max_steps:
         lm = lambda t, r, p: _levenberg_marquardt(coefficients, r, t, p, lm_max_steps, 1e-10, 1e-12)  # noqa: E731
@@ -578,6 +584,9 @@ def _try_other_start(out, index, starts, spline, target, prior, reference):
 #: Relative residual (with the prior rows) beyond which a pixel still moving is not polished
 #: further (CIEDE2000 is then well above 1); it keeps its status MAX_STEPS or OUT_OF_MODEL.
 _HOPELESS_RESIDUAL = 0.03
+#: Factor by which a pixel beyond ``_HOPELESS_RESIDUAL`` under a shading prior must lower its cost
+#: in a round of straggler steps to go on.
+_DESCENDING = 0.9
 
 
 #: Chunk size for the subsets that go round again (second branch, stragglers): one size, so one
