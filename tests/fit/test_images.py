@@ -361,3 +361,20 @@ def test_an_albedo_capture_holds_the_shading_to_one_scale():
     assert errors["albedo"] <= 0.04 and errors["albedo"] < errors["photo"] and se["albedo"] < se["photo"]
     with pytest.raises(SkinfitInputError, match="input_type"):
         fit_image(rgb, white_balance="none", segmentation="none", input_type="scan", progress=False)
+
+
+def test_a_shading_prior_far_from_the_free_fit_still_converges():
+    """Under an albedo capture's shading prior a colour whose free-shading fit lies far from the
+    prior's shading starts with a high cost (the start ignores the prior) and must still be
+    polished to its optimum, not cut off as out of the gamut: a dark skin made at blend 0.025
+    (shading 0.86) fitted at blend 0.075 on the dark-skin box, whose free fit wants shading ~1.2
+    (before the fix: haemoglobin ~0 at CIEDE2000 2.7, OUT_OF_MODEL)."""
+    from skinfit.colorimetry import DARK_HAEMOGLOBIN_MAX, DARK_MELANIN_MAX, colour_table
+
+    rgb = render_maps(np.array([[0.445]]), np.array([[0.052]]), np.array([[0.86]]), melanin_blend=0.025)
+    table = colour_table(0.075, melanin_max=DARK_MELANIN_MAX, haemoglobin_max=DARK_HAEMOGLOBIN_MAX)
+    free = fit_pixels(rgb, melanin_blend=0.075, table=table, prior=False, progress=False)
+    held = fit_pixels(rgb, melanin_blend=0.075, table=table, prior=False, shading_prior=(1.0, 0.05), progress=False)
+    assert free["shading"][0, 0] > 1.1  # the free fit lies far from the prior's shading
+    assert held["status"][0, 0] == PixelStatus.SUCCESS and held["residual_dE2000"][0, 0] < 0.5
+    assert held["haemoglobin"][0, 0] > 0.02 and abs(np.log(held["shading"][0, 0])) < 0.1
