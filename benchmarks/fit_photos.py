@@ -11,14 +11,15 @@ statistics over the face-skin region), and, each with its mask:
   ``tests/data/``; and, where ``../shared/data/face-albedo/`` exists, the 0.4 MP original. Its mask is
   a head mask: it holds hair, brows, closed eyes, lips and some background as well as skin.
 
-Per input, the time of each stage of the second call (``ImageFit.stage_seconds``). Per input, with ``fit_image``'s defaults (calibrated model, white balance fitted, population prior,
+Per input, with ``fit_image``'s defaults (calibrated model, white balance fitted, population prior,
 light regularisation): seconds per megapixel of a second call (compiled, colour table built), the
 first call, the share of the mask ``SUCCESS``, CIEDE2000 over the whole mask (every pixel the fit
 wrote), the share of skin pixels whose melanin is off its 3 x 3 median by a factor 2, and the skin's
 median melanin and haemoglobin. Baseline in the same run: ``scipy.optimize.least_squares`` per pixel
 (C_m, C_h, shading; maximum likelihood) on the same model through a jitted single-pixel colour, on
 ``--scipy-n`` skin pixels of each input. Peak memory: ``skinfit fit-image`` with its defaults on a
-4096 x 4096 tiling of the capture, in a fresh process.
+4096 x 4096 tiling of the capture, in a fresh process. A second table: where the second call's
+time goes, stage by stage (``ImageFit.stage_seconds``).
 """
 
 from __future__ import annotations

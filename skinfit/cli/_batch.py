@@ -40,11 +40,20 @@ def _skin_text(fit) -> str:
 
 
 def blend_text(fit) -> str:
-    """The blend, with its sd where estimated per face: '0.425 (+-0.26)' or, for several faces,
-    each face's."""
+    """The blend, with its sd where estimated per face: '0.425 (+-0.26)'; for up to
+    ``_LISTED_FACES`` faces each face's, for more their median and range (the summary and the
+    EXR's ``melanin_blend_sd`` hold every face's)."""
     if not fit.blends:
         return f"{fit.summary()['melanin_blend']:.3g}"
+    if len(fit.blends) > _LISTED_FACES:
+        blends, sds = np.array([b["melanin_blend"] for b in fit.blends]), np.array([b["sd"] for b in fit.blends])
+        return (f"median {np.median(blends):.3g} (range {blends.min():.3g}-{blends.max():.3g}, "
+                f"median +-{np.median(sds):.2g}) over {len(blends)} faces")
     return ", ".join(f"{b['melanin_blend']:.3g} (+-{b['sd']:.2g})" for b in fit.blends)
+
+
+#: Faces whose blends the printed line lists one by one.
+_LISTED_FACES = 6
 
 
 def white_balance_text(fit) -> str:

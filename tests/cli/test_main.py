@@ -196,3 +196,16 @@ def test_fit_spectra_with_the_transport_method(tmp_path):
     got = [float(row[header.index(k)]) for k in ("melanin", "melanin_blend", "haemoglobin")]
     np.testing.assert_allclose(got, [0.05, 0.4, 0.03], atol=1e-6)
     assert row[header.index("status")] == "SUCCESS"
+
+
+def test_the_printed_blend_lists_a_few_faces_and_summarises_many():
+    """A group photo lists each face's blend; a crowd (a 4096^2 tiling held 331 faces, whose line
+    ran to 5 kB) gets the median and range."""
+    from types import SimpleNamespace
+
+    from skinfit.cli._batch import blend_text
+
+    faces = lambda n: SimpleNamespace(blends=[{"melanin_blend": 0.1 + 0.1 * k, "sd": 0.05} for k in range(n)])  # noqa: E731
+    assert blend_text(faces(2)) == "0.1 (+-0.05), 0.2 (+-0.05)"
+    text = blend_text(faces(331))
+    assert text.startswith("median ") and "over 331 faces" in text and len(text) < 100
