@@ -387,8 +387,13 @@ _MIN_FACE_PIXELS = 16
 def _face_pixels(rgb, mask, people, options) -> dict[int, np.ndarray]:
     """Each labelled face's fittable pixels (n_k, 3), for faces of at least ``_MIN_FACE_PIXELS``."""
     fittable = _fittable(rgb, mask, options)
-    faces = {int(k): rgb[fittable & (people == k)] for k in np.unique(people[fittable]) if k > 0}
-    return {k: f for k, f in faces.items() if len(f) >= _MIN_FACE_PIXELS}
+    # one pass over the image whatever the number of faces (a crowd's hundreds): the fittable
+    # pixels sorted by label, then split
+    labels = people[fittable]
+    order = np.argsort(labels, kind="stable")
+    labels, pixels = labels[order], rgb[fittable][order]
+    found, starts, counts = np.unique(labels, return_index=True, return_counts=True)
+    return {int(k): pixels[a : a + n] for k, a, n in zip(found, starts, counts) if k > 0 and n >= _MIN_FACE_PIXELS}
 
 
 def _face_blends(faces: dict[int, np.ndarray], gains, options) -> dict[int, BlendEstimate]:
@@ -425,10 +430,12 @@ def _blend_groups(people, mask, estimates, default_blend):
     wanted = np.ones(people.shape, bool) if mask is None else np.asarray(mask) > 0
     groups: dict[tuple[float, bool], np.ndarray] = {}
     assigned = np.zeros(people.shape, bool)
+    labels_of: dict[tuple[float, bool], list[int]] = {}
     for label, estimate in estimates.items():
-        where = wanted & (people == label)
-        key = (estimate.melanin_blend, estimate.dark_box)
-        groups[key] = groups.get(key, np.zeros(people.shape, bool)) | where
+        labels_of.setdefault((estimate.melanin_blend, estimate.dark_box), []).append(label)
+    for key, labels in labels_of.items():  # one pass per blend, not per face
+        where = wanted & np.isin(people, labels)
+        groups[key] = where
         assigned |= where
     rest = wanted & ~assigned
     if rest.any() or not groups:
@@ -450,11 +457,19 @@ def _honest_standard_errors(maps, people, estimates, model, options, regularisat
     shrink = noise**2 / (noise**2 + MODEL_DISCREPANCY**2)  # the colour's information at the model's discrepancy
     population = model.prior if options.get("prior") is not False else None
     slopes = {"melanin": np.zeros(blend_sd.shape, np.float32), "haemoglobin": np.zeros(blend_sd.shape, np.float32)}
-    for label, estimate in estimates.items():
-        where = fitted & (people == label)
-        blend_sd[where] = estimate.sd
-        slopes["melanin"][where] = estimate.melanin_log_slope * estimate.sd
-        slopes["haemoglobin"][where] = estimate.haemoglobin_log_slope * estimate.sd
+    if estimates:  # per-label lookup tables: one pass over the image whatever the number of faces
+        size = max(int(people.max()), max(estimates)) + 1
+        tables = np.zeros((3, size), np.float32)
+        for label, e in estimates.items():
+            tables[:, label] = (e.sd, e.melanin_log_slope * e.sd, e.haemoglobin_log_slope * e.sd)
+        owner = np.where(fitted, people, 0)
+        owner = np.where((owner >= 0) & (owner < size), owner, 0)
+        known = np.zeros(size, bool)
+        known[list(estimates)] = True
+        face = fitted & known[owner]
+        blend_sd[face] = tables[0][owner[face]]
+        slopes["melanin"][face] = tables[1][owner[face]]
+        slopes["haemoglobin"][face] = tables[2][owner[face]]
     for name, top, dark_top in (("melanin", MELANIN_MAX, DARK_MELANIN_MAX), ("haemoglobin", HAEMOGLOBIN_MAX, DARK_HAEMOGLOBIN_MAX)):
         top = np.where(dark[fitted], dark_top, top)
         value, se = maps[name][fitted].astype(float), maps[f"{name}_se"][fitted].astype(float)
