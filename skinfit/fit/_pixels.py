@@ -245,6 +245,39 @@ def _first_pass_chunk(coefficients, inverse, target, prior, steps):
     return (*solved, starts[:, 1], jnp.any(starts[:, 0] != starts[:, 1], axis=-1))
 
 
+@jax.jit
+def _straggler_tail(coefficients, roots, target, damping, prior, steps, rounds, step_tol):
+    """Rounds of ``steps`` steps, at most ``rounds``, for pixels (one chunk) that go on while a
+    round leaves more than ``step_tol`` to go and their cost is below ``_HOPELESS_RESIDUAL`` or
+    fell by ``_DESCENDING`` in it; a pixel that stops keeps its state. The same arithmetic per pixel
+    as the gathered rounds of ``_solve``; returns ``_gauss_newton``'s outputs and which pixels
+    would still go on (n,)."""
+    colour = _spline_colour(coefficients)
+    first = _gauss_newton(colour, roots, target, damping, 0, prior)  # the pixels' state, no step
+    moving = jnp.ones(len(roots), bool)
+
+    def go_on(carried):
+        count, _, moving = carried
+        return (count < rounds) & jnp.any(moving)
+
+    def one_round(carried):
+        count, state, moving = carried
+        new = _gauss_newton(colour, state[0], target, state[5], steps, prior)
+        state = tuple(jnp.where(moving.reshape(-1, *([1] * (a.ndim - 1))), b, a) for a, b in zip(state, new))
+        descending = new[3] < _DESCENDING * carried[1][3]
+        moving = moving & (new[2] > step_tol) & ((new[3] <= _HOPELESS_RESIDUAL) | descending)
+        return count + 1, state, moving
+
+    _, state, moving = jax.lax.while_loop(go_on, one_round, (jnp.asarray(0), first, moving))
+    return (*state, moving)
+
+
+#: Chunk of a tail of few stragglers (the gathered rounds use ``_SUBSET_CHUNK``), and the number
+#: of stragglers at which the rounds go on inside ``_straggler_tail``.
+_TAIL_CHUNK = 256
+_TAIL_FROM = 2048
+
+
 #: Pixels per chunk of the exact transport polish (measured: ~2.2 MB of device memory per pixel).
 _TRANSPORT_CHUNK = 1024
 
@@ -537,15 +570,25 @@ def _solve(table, target, prior, steps, straggler_steps, max_rounds, lm_max_step
     # its cost keeps falling.
     pulled = prior[:, 5] > 0
     moving = np.flatnonzero((remaining > step_tol) & ((residual <= _HOPELESS_RESIDUAL) | pulled))
-    for _ in range(max_rounds):  # gathered, so that converged pixels cost nothing more
-        if not moving.size:
-            break
+    rounds = 0
+    while moving.size > _TAIL_FROM and rounds < max_rounds:  # gathered, so that converged pixels cost nothing more
         before = residual[moving]
         more = map_batches(spline(straggler_steps), (target[moving], roots[moving], damping[moving], prior[moving]), _SUBSET_CHUNK)
         for full, part in zip(out, more):
             full[moving] = part
         descending = residual[moving] < _DESCENDING * before
         moving = moving[(remaining[moving] > step_tol) & ((residual[moving] <= _HOPELESS_RESIDUAL) | descending)]
+        rounds += 1
+    if moving.size and rounds < max_rounds:
+        # the tail (at most one chunk) goes round inside one compiled loop, in a chunk its size:
+        # round by round in Python, a few pixels padded to a full chunk cost as much as the chunk
+        left = jnp.asarray(max_rounds - rounds)
+        tail = lambda t, r, d, p: _straggler_tail(coefficients, r, t, d, p, straggler_steps, left, step_tol)  # noqa: E731
+        size = _TAIL_CHUNK if moving.size <= _TAIL_CHUNK else _SUBSET_CHUNK
+        *more, still = map_batches(tail, (target[moving], roots[moving], damping[moving], prior[moving]), size)
+        for full, part in zip(out, more):
+            full[moving] = part
+        moving = moving[still]
     moving = moving[residual[moving] <= _HOPELESS_RESIDUAL]
     if moving.size and lm_max_steps:
         lm = lambda t, r, p: _levenberg_marquardt(coefficients, r, t, p, lm_max_steps, 1e-10, 1e-12)  # noqa: E731

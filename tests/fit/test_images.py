@@ -378,3 +378,28 @@ def test_a_shading_prior_far_from_the_free_fit_still_converges():
     assert free["shading"][0, 0] > 1.1  # the free fit lies far from the prior's shading
     assert held["status"][0, 0] == PixelStatus.SUCCESS and held["residual_dE2000"][0, 0] < 0.5
     assert held["haemoglobin"][0, 0] > 0.02 and abs(np.log(held["shading"][0, 0])) < 0.1
+
+
+def test_the_compiled_straggler_tail_matches_the_gathered_rounds(monkeypatch):
+    """The last stragglers go round inside one compiled loop (``_straggler_tail``) instead of
+    round by round from Python: the same arithmetic per pixel, so the same fits. A real photo's
+    pixels (hair and background among them, which converge slowly or stop as hopeless), fitted
+    once with the tail and once with gathered rounds all the way."""
+    from pathlib import Path
+
+    from skinfit.fit import _pixels
+    from skinfit.io import read_linear_rgb
+
+    rgb, _ = read_linear_rgb(Path(__file__).parents[1] / "data" / "eileen_collins_face.png")
+    pixels = rgb.reshape(-1, 3)[::7]
+    # free shading (stragglers stop when converged or hopeless), and under an albedo capture's
+    # shading prior (those beyond hopeless go on while their cost falls)
+    options = [dict(), dict(shading_prior=(0.5, 0.05))]
+    with_tail = [fit_pixels(pixels, max_straggler_rounds=12, progress=False, **o) for o in options]
+    monkeypatch.setattr(_pixels, "_TAIL_FROM", 0)
+    rounds = [fit_pixels(pixels, max_straggler_rounds=12, progress=False, **o) for o in options]
+    for tail, gathered in zip(with_tail, rounds):
+        assert np.array_equal(tail["status"], gathered["status"])
+        assert np.isin(tail["status"], (PixelStatus.MAX_STEPS, PixelStatus.OUT_OF_MODEL)).any()
+        for name in ("melanin", "haemoglobin", "shading", "melanin_se"):
+            np.testing.assert_allclose(tail[name], gathered[name], rtol=1e-9, atol=1e-12)
