@@ -14,7 +14,8 @@ machinery the benchmarks use. Units: lengths mm, coefficients mm^-1, wavelengths
 Importing skinfit enables JAX float64 (``jax_enable_x64``): the model runs in float64 unless its
 inputs are float32. It also keeps compiled programs on disk between runs (JAX's persistent
 compilation cache, in a private per-machine folder, never over the user's own JAX setting); set
-``SKINFIT_COMPILATION_CACHE=0`` before the import to opt out (``skinfit._compilation_cache``).
+``SKINFIT_COMPILATION_CACHE=0`` before the import to opt out (``skinfit._compilation_cache``). Image
+fits' colour tables are kept there too (``SKINFIT_DISK_CACHE=0`` opts out; ``skinfit._disk_cache``).
 """
 
 import jax as _jax

@@ -14,6 +14,16 @@ def pad_size(n: int, chunk_size: int) -> int:
     return min(size, chunk_size)
 
 
+def bucket_size(n: int, chunk_size: int, smallest: int = 256, factor: int = 8) -> int:
+    """Batch size for n items from few buckets (``smallest`` times powers of ``factor``, then the
+    chunk size): for cheap per-item programs called at many counts (an image's pixel subsets),
+    where tracing a program for a new size (~0.3 s) costs more than computing padding."""
+    size = smallest
+    while size < min(n, chunk_size):
+        size *= factor
+    return min(size, chunk_size)
+
+
 def chunks(items: np.ndarray, size: int, progress, desc: str):
     """(start, stop, padded chunk) over ``items`` in fixed-size chunks; the last is padded by repetition."""
     n = len(items)

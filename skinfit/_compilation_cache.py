@@ -10,9 +10,11 @@ programs instead. Importing skinfit turns it on where that is safe:
 - one subfolder per machine (architecture, host name and CPU features): cached programs are native
   code for the CPU that compiled them, and a home folder shared by cluster nodes must not hand one
   node's programs to another;
-- only programs that took 0.5 s or more to compile are written (small ones cost more to read than
-  to compile), and the folder is kept under 2 GiB (JAX evicts the least recently used programs;
-  a one-off observation: one demo run wrote about 22 MB, 2026-12-02).
+- only programs that took 0.1 s or more to compile are written (smaller ones cost about as much to
+  read as to compile; at 0.5 s the pixel solver's dozen programs of 0.1-0.4 s were compiled again
+  in every process: the demo's first fit in a fresh process took 8.1-9.1 s, at 0.1 s 7.0-7.2 s,
+  measured 2026-12-06), and the folder is kept under 2 GiB (JAX evicts the least recently used
+  programs; one demo run wrote about 50 MB, 2026-12-06).
 
 Opt out with the environment variable ``SKINFIT_COMPILATION_CACHE=0`` (set before the import). The
 folder is ``$SKINFIT_CACHE_DIR/jax``, else ``$XDG_CACHE_HOME/skinfit/jax``, else
@@ -32,7 +34,7 @@ import jax
 
 #: Environment variable that turns the cache off ("0", "off", "false" or "no").
 OPT_OUT_VARIABLE = "SKINFIT_COMPILATION_CACHE"
-MIN_COMPILE_SECONDS = 0.5
+MIN_COMPILE_SECONDS = 0.1
 MAX_CACHE_BYTES = 2 * 1024**3
 
 

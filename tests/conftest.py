@@ -3,6 +3,7 @@ import os
 # the suite runs without the persistent compilation cache: what it counts and times must not depend on
 # what an earlier run left on disk (tests/test_compilation_cache.py checks the cache in subprocesses)
 os.environ["SKINFIT_COMPILATION_CACHE"] = "0"
+os.environ["SKINFIT_DISK_CACHE"] = "0"  # the tests exercise the builds (tests/test_disk_cache.py turns it on)
 
 import jax  # noqa: E402
 import numpy as np  # noqa: E402

@@ -33,6 +33,7 @@ import numpy as np
 
 from .._batching import map_batches
 from .._caching import BoundedCache, eager_cached_property
+from .._disk_cache import load_arrays, save_arrays
 from .._validate import SkinfitInputError
 from ..model import (
     SkinModel,
@@ -178,12 +179,31 @@ def colour_table(
     # coarse tables (the blend search's, skinfit.fit) are kept apart: a search over 20 blends must
     # not push the full-size tables a fit is using out of their cache
     cache = _TABLES if inverse_cells >= 512 else _COARSE_TABLES
-    return cache.get(key, lambda: _colour_table(float(melanin_blend), str(illuminant), float(melanin_max), float(haemoglobin_max),
-                                                  int(nodes), int(inverse_cells), model, direct))
+    build = lambda: _colour_table(float(melanin_blend), str(illuminant), float(melanin_max), float(haemoglobin_max),  # noqa: E731
+                                  int(nodes), int(inverse_cells), model, direct)
+    return cache.get(key, lambda: _stored_or_built(key, model, build))
 
 
 _TABLES = BoundedCache(8)
 _COARSE_TABLES = BoundedCache(48)
+
+#: The arrays of a ``ColourTable`` that ``skinfit._disk_cache`` keeps between processes.
+_STORED = ("coefficients", "inverse_roots", "inverse_chroma", "inverse_jacobian")
+
+
+def _stored_or_built(key, model, build) -> ColourTable:
+    """The table of ``key`` from the disk cache (a second process, the same code and model), else
+    ``build()`` and saved there."""
+    melanin_blend, illuminant, melanin_max, haemoglobin_max, nodes = key[:5]
+    stored = load_arrays("colour-tables", key)
+    if stored is not None and set(stored) == {*_STORED, "edges_r", "edges_g"}:
+        arrays = [stored[name] for name in _STORED]
+        return ColourTable(melanin_blend, illuminant, melanin_max, haemoglobin_max, nodes, *arrays,
+                           (stored["edges_r"], stored["edges_g"]), model)
+    table = build()
+    save_arrays("colour-tables", key, {**{name: getattr(table, name) for name in _STORED},
+                                       "edges_r": table.inverse_edges[0], "edges_g": table.inverse_edges[1]})
+    return table
 
 
 def _colour_table(melanin_blend, illuminant, melanin_max, haemoglobin_max, nodes, inverse_cells, model, direct) -> ColourTable:
@@ -321,6 +341,7 @@ def _patch_coefficients(value, du, dv, duv) -> np.ndarray:
     return np.moveaxis(coefficients, 2, -1).reshape(cells * cells, 48)
 
 
+@jax.jit
 def spline_rgb(coefficients, roots):
     """The spline's colour (n, 3) at roots (n, 2) in [0, 1]^2 and its derivatives d/du, d/dv (n, 3)."""
     channels = spline_channels(coefficients, roots[:, 0], roots[:, 1])

@@ -39,7 +39,7 @@ import jax.numpy as jnp
 import numpy as np
 import optimistix as optx
 
-from .._batching import map_batches, pad_size
+from .._batching import bucket_size, map_batches, pad_size
 from .._validate import SkinfitInputError
 from ..colorimetry import (
     DEFAULT_ILLUMINANT,
@@ -272,6 +272,9 @@ def _straggler_tail(coefficients, roots, target, damping, prior, steps, rounds, 
     return (*state, moving)
 
 
+#: Pixels per chunk of the Levenberg-Marquardt fallback.
+_LM_CHUNK = 256
+
 #: Chunk of a tail of few stragglers (the gathered rounds use ``_SUBSET_CHUNK``), and the number
 #: of stragglers at which the rounds go on inside ``_straggler_tail``.
 _TAIL_CHUNK = 256
@@ -420,7 +423,7 @@ def fit_pixels(
     if todo.size:
         solved = _solve(
             table, clean[todo], rows[todo], steps, straggler_steps, max_straggler_rounds, lm_max_steps, step_tol,
-            shading_reference, pad_size(todo.size, chunk_size), progress, initial,
+            shading_reference, bucket_size(todo.size, chunk_size), progress, initial,
         )
         if exact_steps:
             exact_model = table.model_arguments()
@@ -433,7 +436,7 @@ def fit_pixels(
             polished[2] = np.where(solved[2] <= step_tol, polished[2], np.inf)
             solved = polished[:5] + [polished[6]]
         roots[todo], shading[todo], remaining[todo], _, fitted[todo], normal[todo] = solved
-        (delta_e[todo],) = map_batches(_delta_e_chunk, (clean[todo], fitted[todo]), pad_size(todo.size, chunk_size))
+        (delta_e[todo],) = map_batches(_delta_e_chunk, (clean[todo], fitted[todo]), bucket_size(todo.size, chunk_size))
         status[todo[remaining[todo] > step_tol]] = PixelStatus.MAX_STEPS
         # a colour the model misses by more than max_delta_e is not skin as the camera model sees
         # it, whether or not the solver settled (colours far outside the gamut settle slowly)
@@ -592,8 +595,9 @@ def _solve(table, target, prior, steps, straggler_steps, max_rounds, lm_max_step
     moving = moving[residual[moving] <= _HOPELESS_RESIDUAL]
     if moving.size and lm_max_steps:
         lm = lambda t, r, p: _levenberg_marquardt(coefficients, r, t, p, lm_max_steps, 1e-10, 1e-12)  # noqa: E731
-        lm_roots, lm_ok = map_batches(lm, (target[moving], roots[moving], prior[moving]), pad_size(moving.size, 256))
-        final = map_batches(spline(0), (target[moving], lm_roots, damping[moving], prior[moving]), pad_size(moving.size, 256))
+        # one chunk size, whatever the count: tracing optimistix's solver costs ~1.7 s a shape
+        lm_roots, lm_ok = map_batches(lm, (target[moving], roots[moving], prior[moving]), _LM_CHUNK)
+        final = map_batches(spline(0), (target[moving], lm_roots, damping[moving], prior[moving]), _LM_CHUNK)
         for full, part in zip(out, final):
             full[moving] = part
         remaining[moving] = np.where(lm_ok, 0.0, np.inf)
