@@ -27,6 +27,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import os
 import resource
 import subprocess
 import sys
@@ -161,8 +162,6 @@ def fresh_process(image: Path, runs: int = 3) -> dict:
     """The first ``fit_image`` (defaults) of ``image`` in fresh processes that share skinfit's caches
     (compiled programs, colour tables) in an empty folder: the first run fills them, the later ones
     read them (what a user's second session gets). Seconds each, and of the same with the caches off."""
-    import os
-
     def run(env):
         done = subprocess.run([sys.executable, "-c", _FRESH, str(image)], env=env, capture_output=True, text=True)
         if done.returncode != 0:

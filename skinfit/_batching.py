@@ -8,10 +8,7 @@ import numpy as np
 
 def pad_size(n: int, chunk_size: int) -> int:
     """Batch size for n items: the chunk size, or the next power of two below it (few compilations)."""
-    size = 1
-    while size < min(n, chunk_size):
-        size *= 2
-    return min(size, chunk_size)
+    return bucket_size(n, chunk_size, smallest=1, factor=2)
 
 
 def bucket_size(n: int, chunk_size: int, smallest: int = 256, factor: int = 8) -> int:

@@ -462,11 +462,10 @@ def _honest_standard_errors(maps, people, estimates, model, options, regularisat
         tables = np.zeros((3, size), np.float32)
         for label, e in estimates.items():
             tables[:, label] = (e.sd, e.melanin_log_slope * e.sd, e.haemoglobin_log_slope * e.sd)
-        owner = np.where(fitted, people, 0)
-        owner = np.where((owner >= 0) & (owner < size), owner, 0)
+        owner = np.where(fitted & (people > 0), people, 0)  # faces are labelled from 1
         known = np.zeros(size, bool)
         known[list(estimates)] = True
-        face = fitted & known[owner]
+        face = known[owner]
         blend_sd[face] = tables[0][owner[face]]
         slopes["melanin"][face] = tables[1][owner[face]]
         slopes["haemoglobin"][face] = tables[2][owner[face]]

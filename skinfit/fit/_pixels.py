@@ -245,11 +245,17 @@ def _first_pass_chunk(coefficients, inverse, target, prior, steps):
     return (*solved, starts[:, 1], jnp.any(starts[:, 0] != starts[:, 1], axis=-1))
 
 
+def _goes_on(remaining, residual, before, step_tol):
+    """Whether a straggler goes round again (NumPy or JAX arrays): more than ``step_tol`` still to
+    go, and a cost below ``_HOPELESS_RESIDUAL`` or one that fell by ``_DESCENDING`` from ``before``
+    in the last round."""
+    return (remaining > step_tol) & ((residual <= _HOPELESS_RESIDUAL) | (residual < _DESCENDING * before))
+
+
 @jax.jit
 def _straggler_tail(coefficients, roots, target, damping, prior, steps, rounds, step_tol):
-    """Rounds of ``steps`` steps, at most ``rounds``, for pixels (one chunk) that go on while a
-    round leaves more than ``step_tol`` to go and their cost is below ``_HOPELESS_RESIDUAL`` or
-    fell by ``_DESCENDING`` in it; a pixel that stops keeps its state. The same arithmetic per pixel
+    """Rounds of ``steps`` steps, at most ``rounds``, for pixels (one chunk) while ``_goes_on``;
+    a pixel that stops keeps its state. The same arithmetic per pixel
     as the gathered rounds of ``_solve``; returns ``_gauss_newton``'s outputs and which pixels
     would still go on (n,)."""
     colour = _spline_colour(coefficients)
@@ -264,8 +270,7 @@ def _straggler_tail(coefficients, roots, target, damping, prior, steps, rounds, 
         count, state, moving = carried
         new = _gauss_newton(colour, state[0], target, state[5], steps, prior)
         state = tuple(jnp.where(moving.reshape(-1, *([1] * (a.ndim - 1))), b, a) for a, b in zip(state, new))
-        descending = new[3] < _DESCENDING * carried[1][3]
-        moving = moving & (new[2] > step_tol) & ((new[3] <= _HOPELESS_RESIDUAL) | descending)
+        moving = moving & _goes_on(new[2], new[3], carried[1][3], step_tol)
         return count + 1, state, moving
 
     _, state, moving = jax.lax.while_loop(go_on, one_round, (jnp.asarray(0), first, moving))
@@ -579,8 +584,7 @@ def _solve(table, target, prior, steps, straggler_steps, max_rounds, lm_max_step
         more = map_batches(spline(straggler_steps), (target[moving], roots[moving], damping[moving], prior[moving]), _SUBSET_CHUNK)
         for full, part in zip(out, more):
             full[moving] = part
-        descending = residual[moving] < _DESCENDING * before
-        moving = moving[(remaining[moving] > step_tol) & ((residual[moving] <= _HOPELESS_RESIDUAL) | descending)]
+        moving = moving[_goes_on(remaining[moving], residual[moving], before, step_tol)]
         rounds += 1
     if moving.size and rounds < max_rounds:
         # the tail (at most one chunk) goes round inside one compiled loop, in a chunk its size:
