@@ -38,6 +38,7 @@ DEPENDS_ON = {
     "renderers.json": ("benchmarks/renderers.py", ["skinfit/model", "skinfit/export"]),
     "segment_faces.json": ("benchmarks/segment_faces.py", ["skinfit/segmentation"]),
     "solver_diagnosis.json": ("benchmarks/solver_diagnosis.py", ["skinfit/model", "skinfit/fit"]),
+    "spectra_starts.json": ("benchmarks/spectra_starts.py", ["skinfit/model", "skinfit/fit"]),
     "transport_fit.json": ("benchmarks/transport_fit.py", ["skinfit/model", "skinfit/fit", "skinfit/colorimetry"]),
     "transport_fit_h100.json": ("benchmarks/transport_fit.py", ["skinfit/model", "skinfit/fit"]),
     "transport_table.json": ("benchmarks/build_transport_table.py", ["skinfit/model/_transport.py", "skinfit/model/_transport_table.py"]),
