@@ -22,7 +22,8 @@ def fit_image_to_folder(path, out: Path, options: dict) -> str:
     """Fit one image and write its outputs into ``out``; returns the summary line."""
     stem = Path(path).stem
     fit = fit_image(path, **options)
-    photo = read_linear_rgb(path, options.get("input_space"))[0] if fit.region is not None else None  # under the region overlay
+    # under the region overlay: float32 (a third of float64's decoding, beside the fit's maps)
+    photo = read_linear_rgb(path, options.get("input_space"), np.float32)[0] if fit.region is not None else None
     maps_path = write_fit(fit, out, f"{stem}_", str(path), options.get("illuminant", "D65"), photo)
     summary = fit.summary()
     return (
@@ -69,13 +70,14 @@ def write_fit(fit, out: Path, prefix: str, source: str, illuminant: str, photo: 
     ``<prefix>regions.png`` (where faces were segmented; over ``photo``, linear sRGB, if given)
     and, last (atomically, so that its presence marks the image done), ``<prefix>maps.exr``;
     returns the maps path."""
-    if photo is not None:
-        photo = np.asarray(photo, np.float32)
-    write_png(out / f"{prefix}reconstructed.png", encoded_srgb(fit.fitted_linear_rgb))
-    write_png(out / f"{prefix}dE2000.png", delta_e_image(fit.residual_dE2000))
+    # each picture is made a band of rows at a time as it is written: no full-size copies beside the maps
+    under = fit.fitted_linear_rgb if photo is None else photo
+    write_png(out / f"{prefix}reconstructed.png", _Rows(fit.fitted_linear_rgb.shape, lambda rows: encoded_srgb(fit.fitted_linear_rgb[rows])))
+    write_png(out / f"{prefix}dE2000.png", _Rows((*fit.residual_dE2000.shape, 3), lambda rows: delta_e_image(fit.residual_dE2000[rows])))
     write_png(out / f"{prefix}skin_mask.png", fit.skin_mask[..., None])  # one channel, 0 or 255
     if fit.region is not None:
-        write_png(out / f"{prefix}regions.png", region_overlay(encoded_srgb(fit.fitted_linear_rgb if photo is None else photo), fit.region))
+        write_png(out / f"{prefix}regions.png",
+                  _Rows(under.shape, lambda rows: region_overlay(encoded_srgb(np.asarray(under[rows], np.float32)), fit.region[rows])))
     attributes = {
         "skinfit:source": source,
         "skinfit:illuminant": illuminant,
@@ -89,6 +91,17 @@ def write_fit(fit, out: Path, prefix: str, source: str, illuminant: str, photo: 
     maps_path = out / f"{prefix}maps.exr"
     write_exr(maps_path, fit.maps(), attributes)
     return maps_path
+
+
+class _Rows:
+    """An image (``shape``) made a band of rows at a time: ``image[rows]`` is ``rows_of(rows)``
+    (what ``write_png`` reads), so that no full-size copy is held."""
+
+    def __init__(self, shape, rows_of):
+        self.shape, self._rows_of = tuple(shape), rows_of
+
+    def __getitem__(self, rows: slice) -> np.ndarray:
+        return self._rows_of(rows)
 
 
 def encoded_srgb(linear: np.ndarray, rows: int = 256) -> np.ndarray:

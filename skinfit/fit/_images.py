@@ -336,20 +336,27 @@ def fit_image(
             options["shading_prior"] = (shading_scale, ALBEDO_SHADING_SD)
         elif per_face:
             estimates = _face_blends(faces_pixels, gains, options)
-    maps, field = None, None
+        del faces_pixels  # every face's pixels: not needed by the fits
     dark = np.zeros(rgb.shape[:2], bool)  # the pixels fitted on the dark-skin box
-    for (blend, dark_box), where in _blend_groups(people, mask, estimates, melanin_blend):
+    # each group is fitted on maps of its own (its spatial steps see its pixels only); the smaller
+    # groups go first and keep only their own pixels' values, so that one full set of maps is held
+    # at a time whatever the number of groups (the groups are disjoint: the order changes nothing)
+    groups, earlier = _blend_groups(people, mask, estimates, melanin_blend)[::-1], []
+    for i, ((blend, dark_box), where) in enumerate(groups):
         group = dict(options, melanin_blend=blend)
         if dark_box:
             group["table"] = colour_table(blend, illuminant, DARK_MELANIN_MAX, DARK_HAEMOGLOBIN_MAX, model=model)
             dark |= where
-        part, part_field = _fit_one_blend(rgb, gains, where, group, regularisation, progress, stage)
-        if maps is None:
-            maps, field = part, np.array(part_field, dtype=float)
-        else:
-            for k, v in part.items():
-                maps[k][where] = v[where]
-            field[where] = part_field[where]
+        maps, field = _fit_one_blend(rgb, gains, where, group, regularisation, progress, stage)
+        if i < len(groups) - 1:
+            earlier.append((where, {k: v[where] for k, v in maps.items()}, field[where]))
+            maps = field = None
+    field = np.array(field, dtype=float)
+    for where, values, part_field in earlier:
+        for k, v in values.items():
+            maps[k][where] = v
+        field[where] = part_field
+    del earlier
     with stage("statuses"):
         _classify(rgb, gains, maps, field, model, dark)
     with stage("standard errors"):
@@ -469,20 +476,23 @@ def _honest_standard_errors(maps, people, estimates, model, options, regularisat
         blend_sd[face] = tables[0][owner[face]]
         slopes["melanin"][face] = tables[1][owner[face]]
         slopes["haemoglobin"][face] = tables[2][owner[face]]
-    for name, top, dark_top in (("melanin", MELANIN_MAX, DARK_MELANIN_MAX), ("haemoglobin", HAEMOGLOBIN_MAX, DARK_HAEMOGLOBIN_MAX)):
-        top = np.where(dark[fitted], dark_top, top)
-        value, se = maps[name][fitted].astype(float), maps[f"{name}_se"][fitted].astype(float)
-        prior_precision = 0.0
-        if population is not None:
-            prior_precision = 1.0 / population.moments(name)[1] ** 2
-        fit_precision = prior_precision
-        if REGULARISATION[regularisation] is not None and population is not None:
-            fit_precision = fit_precision + 1.0 / REGULARISATION[regularisation][0] ** 2
-        with np.errstate(divide="ignore"):
-            colour = np.maximum(1.0 / np.maximum(se / np.maximum(value, 1e-12), 1e-12) ** 2 - fit_precision, 0.0) * shrink
-            log_se = np.sqrt(1.0 / (colour + prior_precision) + slopes[name][fitted].astype(float) ** 2)
-        # an unidentified value reports the whole box, as the fit's own standard errors do
-        maps[f"{name}_se"][fitted] = np.minimum(value * np.nan_to_num(log_se, nan=np.inf, posinf=np.inf), top)
+    rows = max(1, _CLASSIFY_CHUNK // max(blend_sd.shape[1], 1))
+    for band in (slice(top, top + rows) for top in range(0, blend_sd.shape[0], rows)):  # bounded float64 temporaries
+        here = fitted[band]
+        for name, top, dark_top in (("melanin", MELANIN_MAX, DARK_MELANIN_MAX), ("haemoglobin", HAEMOGLOBIN_MAX, DARK_HAEMOGLOBIN_MAX)):
+            top = np.where(dark[band][here], dark_top, top)
+            value, se = maps[name][band][here].astype(float), maps[f"{name}_se"][band][here].astype(float)
+            prior_precision = 0.0
+            if population is not None:
+                prior_precision = 1.0 / population.moments(name)[1] ** 2
+            fit_precision = prior_precision
+            if REGULARISATION[regularisation] is not None and population is not None:
+                fit_precision = fit_precision + 1.0 / REGULARISATION[regularisation][0] ** 2
+            with np.errstate(divide="ignore"):
+                colour = np.maximum(1.0 / np.maximum(se / np.maximum(value, 1e-12), 1e-12) ** 2 - fit_precision, 0.0) * shrink
+                log_se = np.sqrt(1.0 / (colour + prior_precision) + slopes[name][band][here].astype(float) ** 2)
+            # an unidentified value reports the whole box, as the fit's own standard errors do
+            maps[f"{name}_se"][band][here] = np.minimum(value * np.nan_to_num(log_se, nan=np.inf, posinf=np.inf), top)
     return blend_sd
 
 
@@ -644,9 +654,9 @@ def _regularise(rgb, gains, maps, field, options, sd, size):
     if not fitted.any():
         return
     model = options["model"]
-    centres, sds = [], []
+    centres, sds = np.empty((*fitted.shape, 2), np.float32), []  # float32: a 4096 x 4096 image's centres in 134 MB
     population = model.prior
-    for name in ("melanin", "haemoglobin"):
+    for i, name in enumerate(("melanin", "haemoglobin")):
         log_c = np.log(np.maximum(maps[name], np.float32(1e-9)))
         fill = smooth_field(log_c, fitted, _field_sigma(log_c.shape))
         centre = neighbourhood_median(log_c, fitted, size, fill)
@@ -656,9 +666,10 @@ def _regularise(rgb, gains, maps, field, options, sd, size):
             centre, combined = (centre / sd**2 + p_mean / p_sd**2) / precision, np.sqrt(1.0 / precision)
         else:
             combined = sd
-        centres.append(centre.astype(np.float32))  # float32: a 4096 x 4096 image's centres in 134 MB
+        centres[..., i] = centre
         sds.append(combined)
-    _refit(rgb, gains, maps, fitted, options, prior_mean=np.stack(centres, axis=-1), prior_sd=np.array(sds),
+        del log_c, fill, centre
+    _refit(rgb, gains, maps, fitted, options, prior_mean=centres, prior_sd=np.array(sds),
            shading_reference=field, prior=True, initial=(maps["melanin"], maps["haemoglobin"]))
 
 
@@ -716,27 +727,13 @@ def _classify(rgb, gains, maps, field, model, dark=None):
 
     status = maps["status"]
     dark = np.zeros(status.shape, bool) if dark is None else dark
-    box, dark_skin_box = skin_box(model), skin_box(model, DARK_MELANIN_MAX, DARK_HAEMOGLOBIN_MAX)
-    implausible = np.zeros(status.shape, bool)
-    # the colour reproduced: the margin beyond the box applies only there (a skin on the edge fits
-    # exactly; a glint, skin plus white, fits as the lightest skin with a CIEDE2000 of 0.5)
-    exact = maps["residual_dE2000"] <= _EXACT_DE
-    for name, top, dark_top in (("melanin", MELANIN_MAX, DARK_MELANIN_MAX), ("haemoglobin", HAEMOGLOBIN_MAX, DARK_HAEMOGLOBIN_MAX)):
-        # each pixel against the box it was fitted on
-        value, top = maps[name], np.where(dark, dark_top, top)
-        low, high = np.where(dark, dark_skin_box[name][0], box[name][0]), np.where(dark, dark_skin_box[name][1], box[name][1])
-        # outside the skin box, or pinned at the table's top by a colour beyond it (missed by more
-        # than _EXACT_DE: a skin at the box's top fits exactly). Only a value the colour identifies
-        # counts: one it does not (haemoglobin under heavy melanin: a standard error larger than the
-        # value, or than a quarter of the box) is skin of unknown C_h, wherever the solver left it.
-        se = maps[f"{name}_se"]
-        identified = se < np.minimum(_IDENTIFIED * top, value)
-        pinned = (value >= 0.999 * top) & ~exact
-        margin = np.where(exact, np.exp(np.minimum(2.0 * se / np.maximum(value, 1e-12), _EDGE_MARGIN)), 1.0)
-        implausible |= identified & (pinned | (value * margin < low) | (value > high * margin))
-    # another surface than the skin around it (hair, brows, eyes): a shading far from the field
-    implausible = implausible | (np.abs(np.log(np.maximum(maps["shading"], 1e-12) / field)) > _OTHER_SURFACE)
-    status[(status <= PixelStatus.OUT_OF_MODEL) & implausible] = PixelStatus.NOT_SKIN
+    boxes = skin_box(model), skin_box(model, DARK_MELANIN_MAX, DARK_HAEMOGLOBIN_MAX)
+    rows = max(1, _CLASSIFY_CHUNK // max(status.shape[1], 1))
+    for top in range(0, status.shape[0], rows):  # per-pixel tests in bands: no full-size float64 temporaries
+        band = slice(top, top + rows)
+        implausible = _implausible({k: v[band] for k, v in maps.items()}, field[band], dark[band], boxes)
+        part = status[band]
+        part[(part <= PixelStatus.OUT_OF_MODEL) & implausible] = PixelStatus.NOT_SKIN
 
     # glints: t = a L + s g, with L the local skin colour per unit shading and g the white (gains)
     candidates = np.nonzero((status == PixelStatus.OUT_OF_MODEL) | (status == PixelStatus.NOT_SKIN))
@@ -759,6 +756,32 @@ def _classify(rgb, gains, maps, field, model, dark=None):
     not_skin = status >= PixelStatus.NOT_SKIN
     for name in ("melanin", "haemoglobin", "shading", "melanin_se", "haemoglobin_se"):
         maps[name][not_skin] = 0.0
+
+
+def _implausible(maps, field, dark, boxes) -> np.ndarray:
+    """``_classify``'s test of fits no skin has, on (a band of) the maps: outside the skin box
+    (``boxes``: the usual and the dark-skin one, each pixel against the one it was fitted on) where
+    the colour identifies the value, pinned at the box's top by a colour beyond it, or a shading 3x
+    off the smooth ``field``."""
+    box, dark_skin_box = boxes
+    implausible = np.zeros(dark.shape, bool)
+    # the colour reproduced: the margin beyond the box applies only there (a skin on the edge fits
+    # exactly; a glint, skin plus white, fits as the lightest skin with a CIEDE2000 of 0.5)
+    exact = maps["residual_dE2000"] <= _EXACT_DE
+    for name, top, dark_top in (("melanin", MELANIN_MAX, DARK_MELANIN_MAX), ("haemoglobin", HAEMOGLOBIN_MAX, DARK_HAEMOGLOBIN_MAX)):
+        value, top = maps[name], np.where(dark, dark_top, top)
+        low, high = np.where(dark, dark_skin_box[name][0], box[name][0]), np.where(dark, dark_skin_box[name][1], box[name][1])
+        # outside the skin box, or pinned at the table's top by a colour beyond it (missed by more
+        # than _EXACT_DE: a skin at the box's top fits exactly). Only a value the colour identifies
+        # counts: one it does not (haemoglobin under heavy melanin: a standard error larger than the
+        # value, or than a quarter of the box) is skin of unknown C_h, wherever the solver left it.
+        se = maps[f"{name}_se"]
+        identified = se < np.minimum(_IDENTIFIED * top, value)
+        pinned = (value >= 0.999 * top) & ~exact
+        margin = np.where(exact, np.exp(np.minimum(2.0 * se / np.maximum(value, 1e-12), _EDGE_MARGIN)), 1.0)
+        implausible |= identified & (pinned | (value * margin < low) | (value > high * margin))
+    # another surface than the skin around it (hair, brows, eyes): a shading far from the field
+    return implausible | (np.abs(np.log(np.maximum(maps["shading"], 1e-12) / field)) > _OTHER_SURFACE)
 
 
 def _fit_in_bands(rgb, gains, mask, options, progress, band_pixels: int = 1 << 18):

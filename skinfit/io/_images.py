@@ -37,9 +37,10 @@ def _oiio():
     return oiio
 
 
-def read_linear_rgb(path: str | os.PathLike, input_space: str | None = None) -> tuple[np.ndarray, np.ndarray | None]:
-    """Read an image as linear sRGB, (h, w, 3) float64, and its alpha (h, w) or None."""
-    rgb, alpha, _ = read_image(path, input_space)
+def read_linear_rgb(path: str | os.PathLike, input_space: str | None = None, dtype=np.float64) -> tuple[np.ndarray, np.ndarray | None]:
+    """Read an image as linear sRGB, (h, w, 3) float64 (or ``dtype``: float32 for a picture, in a third
+    of the memory of float64's decoding), and its alpha (h, w) or None."""
+    rgb, alpha, _ = read_image(path, input_space, dtype)
     return rgb, alpha
 
 
@@ -47,13 +48,13 @@ def read_linear_rgb(path: str | os.PathLike, input_space: str | None = None) -> 
 RAW_SUFFIXES = frozenset({".dng", ".cr2", ".cr3", ".nef", ".arw", ".raf", ".orf", ".rw2", ".pef", ".srw"})
 
 
-def read_image(path: str | os.PathLike, input_space: str | None = None) -> tuple[np.ndarray, np.ndarray | None, str]:
+def read_image(path: str | os.PathLike, input_space: str | None = None, dtype=np.float64) -> tuple[np.ndarray, np.ndarray | None, str]:
     """``read_linear_rgb`` and a description of the encoding it decoded (``"sRGB"``, ``"linear"``,
     ``"ICC profile 'Display P3'"``, ``"camera raw (LibRaw)"``, or the ``input_space`` given)."""
     path = Path(path)
     if path.suffix.lower() in RAW_SUFFIXES:
-        return _read_raw(path), None, "camera raw (LibRaw, camera white balance, linear sRGB)"
-    spec, pixels = _read_pixels(path)
+        return _read_raw(path).astype(dtype, copy=False), None, "camera raw (LibRaw, camera white balance, linear sRGB)"
+    spec, pixels = _read_pixels(path, dtype)
     names = [name.upper() for name in spec.channelnames]
     index = {}
     for channel in ("R", "G", "B", "A"):
@@ -76,9 +77,9 @@ def read_image(path: str | os.PathLike, input_space: str | None = None) -> tuple
         except UnsupportedProfile as error:
             warnings.warn(f"{path.name}: {error}; its pixels are taken as sRGB (give input_space to say otherwise)", stacklevel=2)
         else:
-            return profile.to_linear_srgb(rgb), alpha, f"ICC profile {profile.description!r}"
+            return np.asarray(profile.to_linear_srgb(rgb), dtype), alpha, f"ICC profile {profile.description!r}"
     space = input_space or _default_space(spec)
-    return to_linear_srgb(rgb, space), alpha, space
+    return np.asarray(to_linear_srgb(rgb, space), dtype), alpha, space
 
 
 def _read_raw(path: Path) -> np.ndarray:
@@ -170,8 +171,8 @@ def read_exr_channels(path: str | os.PathLike) -> tuple[dict[str, np.ndarray], d
     return {name: data[..., i] for i, name in enumerate(spec.channelnames)}, attributes
 
 
-def _read_pixels(path: Path):
-    """(spec, pixels (h, w, channels) float64, as displayed: EXIF orientation applied) of the
+def _read_pixels(path: Path, dtype=np.float64):
+    """(spec, pixels (h, w, channels) float64 or ``dtype``, as displayed: EXIF orientation applied) of the
     first subimage; unreadable, truncated or corrupt files raise ``SkinfitInputError``."""
     oiio = _oiio()
     if not path.is_file():
@@ -188,7 +189,7 @@ def _read_pixels(path: Path):
             raise SkinfitInputError(f"cannot read image {path}: {_first_line(image.geterror()) or 'no pixels'} (truncated or corrupt file)")
     finally:
         image.close()
-    pixels = np.asarray(pixels, dtype=np.float64).reshape(spec.height, spec.width, spec.nchannels)
+    pixels = np.asarray(pixels, dtype=dtype).reshape(spec.height, spec.width, spec.nchannels)
     if pixels.size == 0:
         raise SkinfitInputError(f"{path} is empty")
     return spec, orient(pixels, spec.get_int_attribute("Orientation", 1))

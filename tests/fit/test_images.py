@@ -403,3 +403,34 @@ def test_the_compiled_straggler_tail_matches_the_gathered_rounds(monkeypatch):
         assert np.isin(tail["status"], (PixelStatus.MAX_STEPS, PixelStatus.OUT_OF_MODEL)).any()
         for name in ("melanin", "haemoglobin", "shading", "melanin_se"):
             np.testing.assert_allclose(tail[name], gathered[name], rtol=1e-9, atol=1e-12)
+
+
+def test_blend_groups_and_bands_leave_the_fit_unchanged(monkeypatch):
+    """Two people of other blends: each group of pixels is fitted on maps of its own and merged
+    (the smaller first, kept compactly, so that one full set of maps is held), and the statuses and
+    standard errors go in bands of rows. Each person's maps are those of a fit of that person
+    alone at the same blend (to the solver's precision: the darker one's group starts from the
+    dark-skin table), and bands of one row change nothing, bit for bit."""
+    from benchmarks.fit_image_box import colour_science_render
+    from skinfit.fit import _images
+
+    y, x = np.mgrid[0:12, 0:12] / 11
+    people = []
+    for melanin, blend in ((0.25, 0.1), (0.04, 0.8)):
+        c_m = melanin * (1 + 0.1 * (x - 0.5))
+        people.append(colour_science_render(c_m, 0.02 * (1 + 0.3 * (y - 0.5)), 0.85 * (1 + 0.04 * np.sin(3 * x + 2 * y)), blend,
+                                            SkinModel.default()))
+    rgb = np.concatenate(people, axis=1)
+    labels = np.repeat(np.array([[1] * 12 + [2] * 12], np.int16), 12, axis=0)
+    both = fit_image(rgb, white_balance="none", segmentation="none", blend_regions=labels, progress=False)
+    blends = {b["label"]: b["melanin_blend"] for b in both.blends}
+    assert len(set(blends.values())) == 2  # two groups
+    for label in (1, 2):
+        alone = fit_image(rgb, white_balance="none", mask=labels == label, melanin_blend=blends[label], progress=False)
+        assert np.array_equal(both.status[labels == label], alone.status[labels == label])
+        for name in ("melanin", "haemoglobin", "shading"):  # the darker person's group starts from the dark-skin table
+            np.testing.assert_allclose(getattr(both, name)[labels == label], getattr(alone, name)[labels == label], rtol=1e-4, err_msg=name)
+    monkeypatch.setattr(_images, "_CLASSIFY_CHUNK", 1)  # bands of one row
+    rows = fit_image(rgb, white_balance="none", segmentation="none", blend_regions=labels, progress=False)
+    for name, value in both.maps().items():
+        assert np.array_equal(getattr(rows, name), value), name

@@ -71,3 +71,17 @@ def test_masks_of_any_channel_count_and_bit_depth(tmp_path, fmt, top, names):
     dtype = np.uint8 if fmt == oiio.UINT8 else np.uint16
     write(tmp_path / "mask.png", (data * top).astype(dtype), fmt, names)
     np.testing.assert_array_equal(read_mask(tmp_path / "mask.png"), keep)
+
+
+def test_a_picture_reads_as_float32_in_the_same_values(tmp_path):
+    """``dtype=np.float32`` (pictures beside a fit's maps: a third of float64's decoding) gives
+    float32 arrays within float32 rounding of the float64 read, for an sRGB PNG and a linear EXR."""
+    rng = np.random.default_rng(3)
+    data = rng.integers(0, 65536, (9, 7, 3)).astype(np.uint16)
+    write(tmp_path / "a.png", data, oiio.UINT16, ("R", "G", "B"))
+    write_exr(tmp_path / "a.exr", {c: rng.uniform(0, 2, (9, 7)).astype(np.float32) for c in "RGB"})
+    for name in ("a.png", "a.exr"):
+        full, _ = read_linear_rgb(tmp_path / name)
+        small, _ = read_linear_rgb(tmp_path / name, dtype=np.float32)
+        assert full.dtype == np.float64 and small.dtype == np.float32
+        np.testing.assert_allclose(small, full, rtol=2e-7, atol=1e-7)
