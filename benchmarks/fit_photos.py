@@ -18,7 +18,7 @@ wrote), the share of skin pixels whose melanin is off its 3 x 3 median by a fact
 median melanin and haemoglobin. Baseline in the same run: ``scipy.optimize.least_squares`` per pixel
 (C_m, C_h, shading; maximum likelihood) on the same model through a jitted single-pixel colour, on
 ``--scipy-n`` skin pixels of each input. Peak memory: ``skinfit fit-image`` with its defaults on a
-4096 x 4096 tiling of the capture, in a fresh process. A second table: where the second call's
+4096 x 4096 tiling of the capture, in a fresh process, and within each of its stages. A second table: where the second call's
 time goes, stage by stage (``ImageFit.stage_seconds``). And the demo's first fit in fresh processes:
 with skinfit's caches off, filling them, and reading them (a user's later sessions).
 """
@@ -124,26 +124,75 @@ def scipy_baseline(rgb, fit, n, seed=0) -> dict:
     return {"s_per_megapixel": (time.perf_counter() - start) / len(pixels) * 1e6, "pixels_timed": int(len(pixels))}
 
 
+#: ``skinfit fit-image`` run in a fresh process as its command line does, with a thread that samples
+#: the resident memory every 10 ms and the stage it is in (``ImageFit.stage_seconds``' names; "writing":
+#: ``write_fit``; "between stages": the rest); prints the peak of each as JSON.
+_MEMORY_BY_STAGE = """
+import contextlib, json, sys, threading, time
+stage, peaks, done = ["start"], {}, []
+def resident_gib():
+    with open("/proc/self/status") as status:
+        return next(int(line.split()[1]) for line in status if line.startswith("VmRSS")) / 2**20
+def sample():
+    while not done:
+        peaks[stage[0]] = max(peaks.get(stage[0], 0.0), resident_gib())
+        time.sleep(0.01)
+threading.Thread(target=sample, daemon=True).start()
+import skinfit.cli._batch as batch
+import skinfit.fit._images as images
+from skinfit.cli._main import main
+timed = images._Stages.__call__
+@contextlib.contextmanager
+def named(self, name):
+    stage[0] = name
+    try:
+        with timed(self, name):
+            yield
+    finally:
+        stage[0] = "between stages"
+images._Stages.__call__ = named
+write_fit = batch.write_fit
+def writing(*args, **kwargs):
+    stage[0] = "writing"
+    return write_fit(*args, **kwargs)
+batch.write_fit = writing
+stage[0] = "between stages"
+code = main(["fit-image", *sys.argv[1:], "--quiet"])
+done.append(True)
+with open("/proc/self/status") as status:
+    peak = next(int(line.split()[1]) for line in status if line.startswith("VmHWM")) / 2**20
+print(json.dumps({"peak": peak, "by_stage": peaks}))
+sys.exit(code)
+"""
+
+
 def peak_memory(rgb, size) -> dict:
     """Peak resident memory (GiB) and wall time of ``skinfit fit-image`` (defaults) on a size x size
-    EXR tiled from ``rgb``, in a fresh process."""
+    EXR tiled from ``rgb``, in fresh processes that share skinfit's caches in an empty folder: the
+    first compiles and fills them (a first session), the second reads them (a user's later ones);
+    for each, the peak within each stage."""
     from skinfit.io import write_exr
 
     reps = -(-size // min(rgb.shape[:2]))
     big = np.tile(rgb, (reps, reps, 1))[:size, :size]
+    runs = {}
     with tempfile.TemporaryDirectory() as folder:
         path = Path(folder) / "big.exr"
         write_exr(path, {c: big[..., i].astype(np.float32) for i, c in enumerate("RGB")})
         del big
-        start = time.perf_counter()
-        done = subprocess.run([sys.executable, "-m", "skinfit", "fit-image", str(path), "--out", str(Path(folder) / "out"), "--quiet"],
-                              capture_output=True, text=True)
-        seconds = time.perf_counter() - start
-        peak_kib = resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss
-    if done.returncode != 0:
-        return {"error": done.stderr[-500:]}
-    return {"pixels": size * size, "peak_rss_gib": peak_kib / 2**20, "wall_s_incl_start_and_compile": seconds,
-            "s_per_megapixel_incl_start": seconds / (size * size / 1e6), "summary_line": done.stdout.strip().splitlines()[-1]}
+        env = dict(os.environ, SKINFIT_CACHE_DIR=str(Path(folder) / "cache"), SKINFIT_COMPILATION_CACHE="1", SKINFIT_DISK_CACHE="1")
+        for run in ("caches_filling", "caches_warm"):
+            start = time.perf_counter()
+            done = subprocess.run([sys.executable, "-c", _MEMORY_BY_STAGE, str(path), "--out", str(Path(folder) / run)],
+                                  capture_output=True, text=True, env=env)
+            seconds = time.perf_counter() - start
+            if done.returncode != 0:
+                return {"error": done.stderr[-500:]}
+            lines = done.stdout.strip().splitlines()
+            measured = json.loads(lines[-1])
+            runs[run] = {"peak_rss_gib": measured["peak"], "wall_s_incl_start": seconds, "s_per_megapixel_incl_start": seconds / (size * size / 1e6),
+                         "summary_line": lines[-2], "peak_rss_gib_by_stage": measured["by_stage"]}
+    return {"pixels": size * size, **runs}
 
 
 #: The demo's fit in a fresh process, timed inside it (import and reading excluded).
@@ -248,10 +297,16 @@ def markdown(record) -> str:
                       f"with skinfit's caches off, {fresh['caches_filling_s']:.1f} s filling them (compiled programs, colour tables), "
                       f"{warm} s reading them."]
     memory = record.get("peak_memory_default_settings")
-    if memory and "peak_rss_gib" in memory:
-        lines += ["", f"4096×4096 (the capture tiled) through `skinfit fit-image` with the defaults in a fresh process: peak resident "
-                      f"{memory['peak_rss_gib']:.2f} GiB, {memory['wall_s_incl_start_and_compile']:.0f} s including start, calibration and compilation "
-                      f"({memory['s_per_megapixel_incl_start']:.1f} s/MP)."]
+    if memory and "caches_warm" in memory:
+        side = int(round(memory["pixels"] ** 0.5))
+        lines += ["", f"{side}×{side} (the capture tiled) through `skinfit fit-image` with the defaults in a fresh process:"]
+        for run, label in (("caches_filling", "a first session (compiling, filling the caches)"), ("caches_warm", "a later one (caches warm)")):
+            r = memory[run]
+            lines.append(f"{label}: peak resident {r['peak_rss_gib']:.2f} GiB, {r['wall_s_incl_start']:.0f} s including start "
+                         f"({r['s_per_megapixel_incl_start']:.1f} s/MP); within each stage (GiB): "
+                         + ", ".join(f"{k} {v:.2f}" for k, v in r["peak_rss_gib_by_stage"].items()) + ".")
+        lines[-2] = "- " + lines[-2]
+        lines[-1] = "- " + lines[-1]
     return "\n".join(lines)
 
 

@@ -15,7 +15,8 @@ and the code that computes them, so a later process loads them instead (millisec
   processes writing at once leave one whole file); one that cannot be read is rebuilt. Each cache
   is kept under ``MAX_BYTES`` (the least recently used files go first; a colour table is ~4 MB).
 
-Opt out with ``SKINFIT_DISK_CACHE=0`` (tests do, so that they exercise the builds).
+The same store keeps the traced programs of the pixel solver (``skinfit._exported``, cache
+``programs``). Opt out with ``SKINFIT_DISK_CACHE=0`` (tests do, so that they exercise the builds).
 """
 
 from __future__ import annotations

@@ -40,6 +40,7 @@ import numpy as np
 import optimistix as optx
 
 from .._batching import bucket_size, map_batches, pad_size
+from .._exported import persistent_jit
 from .._validate import SkinfitInputError
 from ..colorimetry import (
     DEFAULT_ILLUMINANT,
@@ -230,12 +231,12 @@ def _gauss_newton(colour, roots, target, damping, steps, prior):
 _INITIAL_DAMPING = 1e-5
 
 
-@jax.jit
+@persistent_jit
 def _spline_chunk(coefficients, roots, target, damping, prior, steps):
     return _gauss_newton(_spline_colour(coefficients), roots, target, damping, steps, prior)
 
 
-@jax.jit
+@persistent_jit
 def _first_pass_chunk(coefficients, inverse, target, prior, steps):
     """Warm starts and ``steps`` steps from the first; also the second start (n, 2) for a retry
     and whether it differs from the first (n,)."""
@@ -252,7 +253,7 @@ def _goes_on(remaining, residual, before, step_tol):
     return (remaining > step_tol) & ((residual <= _HOPELESS_RESIDUAL) | (residual < _DESCENDING * before))
 
 
-@jax.jit
+@persistent_jit
 def _straggler_tail(coefficients, roots, target, damping, prior, steps, rounds, step_tol):
     """Rounds of ``steps`` steps, at most ``rounds``, for pixels (one chunk) while ``_goes_on``;
     a pixel that stops keeps its state. The same arithmetic per pixel
@@ -296,12 +297,12 @@ def _exact_chunk(exact_model, roots, target, prior, steps):
     return _gauss_newton(_exact_colour(*exact_model), roots, target, damping, steps, prior)
 
 
-@jax.jit
+@persistent_jit
 def _delta_e_chunk(measured, fitted):
     return (delta_e2000(linear_srgb_to_lab(measured), linear_srgb_to_lab(fitted)),)
 
 
-@eqx.filter_jit
+@persistent_jit(static_argnums=(4, 5, 6))  # max_steps, rtol, atol
 def _levenberg_marquardt(coefficients, roots, target, prior, max_steps, rtol, atol):
     """optimistix Levenberg-Marquardt on the spline for the pixels the lock-step solver left
     moving, with the same prior rows; the box by clipping inside the residual (a pixel that ends
