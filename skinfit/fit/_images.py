@@ -242,8 +242,8 @@ def fit_image(
     alpha, encoding = None, "linear sRGB array"
     if _is_path(image):
         with stage("read"):
-            rgb, alpha, encoding = read_image(image, input_space)
-        rgb = rgb.astype(np.float32)  # a file holds no more (float, half or integer): half the memory of a 4096^2 image
+            # float32: a file holds no more (float, half or integer); decoded in float64 a chunk at a time
+            rgb, alpha, encoding = read_image(image, input_space, np.float32)
     else:
         rgb = np.asarray(image, dtype=float)
         if rgb.ndim != 3 or rgb.shape[-1] != 3:

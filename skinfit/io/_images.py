@@ -19,6 +19,7 @@ fills with grey; a PNG cut short) is refused with a one-line error rather than f
 
 from __future__ import annotations
 
+import functools
 import os
 import tempfile
 import warnings
@@ -54,7 +55,7 @@ def read_image(path: str | os.PathLike, input_space: str | None = None, dtype=np
     path = Path(path)
     if path.suffix.lower() in RAW_SUFFIXES:
         return _read_raw(path).astype(dtype, copy=False), None, "camera raw (LibRaw, camera white balance, linear sRGB)"
-    spec, pixels = _read_pixels(path, dtype)
+    spec, pixels = _read_pixels(path, np.float32)  # OIIO's float32, exactly as read
     names = [name.upper() for name in spec.channelnames]
     index = {}
     for channel in ("R", "G", "B", "A"):
@@ -68,8 +69,8 @@ def read_image(path: str | os.PathLike, input_space: str | None = None, dtype=np
             raise SkinfitInputError(
                 f"{path} has channels {', '.join(spec.channelnames)}; an R, G and B channel are needed"
             )
-    rgb = pixels[..., [index["R"], index["G"], index["B"]]]
-    alpha = pixels[..., index["A"]] if "A" in index else None
+    channels = [index["R"], index["G"], index["B"]]
+    alpha = np.asarray(pixels[..., index["A"]], np.float64) if "A" in index else None
 
     if input_space is None and spec.getattribute("ICCProfile") is not None and spec.format.basetype not in _float_types():
         try:
@@ -77,9 +78,29 @@ def read_image(path: str | os.PathLike, input_space: str | None = None, dtype=np
         except UnsupportedProfile as error:
             warnings.warn(f"{path.name}: {error}; its pixels are taken as sRGB (give input_space to say otherwise)", stacklevel=2)
         else:
-            return np.asarray(profile.to_linear_srgb(rgb), dtype), alpha, f"ICC profile {profile.description!r}"
+            return _decoded(pixels, channels, profile.to_linear_srgb, dtype), alpha, f"ICC profile {profile.description!r}"
     space = input_space or _default_space(spec)
-    return np.asarray(to_linear_srgb(rgb, space), dtype), alpha, space
+    return _decoded(pixels, channels, functools.partial(to_linear_srgb, space=space), dtype), alpha, space
+
+
+#: Pixels per chunk of ``_decoded`` (padded: one shape of each decoding program for every image).
+_DECODE_CHUNK = 1 << 18
+
+
+def _decoded(pixels: np.ndarray, channels: list[int], decode, dtype) -> np.ndarray:
+    """``decode`` (float64 (n, 3) -> linear sRGB) of the ``channels`` of ``pixels`` (h, w, c), a chunk
+    of pixels at a time, into a ``dtype`` array (h, w, 3): the values of decoding the whole image in
+    float64 (the transfer functions work per pixel), without its float64 copies (a 48 MP photo's
+    would take 3.5 GB)."""
+    h, w, count = pixels.shape
+    flat, out = pixels.reshape(-1, count), np.empty((h * w, 3), dtype)
+    for start in range(0, h * w, _DECODE_CHUNK):
+        part = np.asarray(flat[start : start + _DECODE_CHUNK][:, channels], np.float64)
+        n = len(part)
+        if n < _DECODE_CHUNK and h * w > _DECODE_CHUNK:
+            part = np.concatenate([part, np.repeat(part[-1:], _DECODE_CHUNK - n, axis=0)])
+        out[start : start + n] = np.asarray(decode(part))[:n]
+    return out.reshape(h, w, 3)
 
 
 def _read_raw(path: Path) -> np.ndarray:

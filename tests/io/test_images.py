@@ -85,3 +85,14 @@ def test_a_picture_reads_as_float32_in_the_same_values(tmp_path):
         small, _ = read_linear_rgb(tmp_path / name, dtype=np.float32)
         assert full.dtype == np.float64 and small.dtype == np.float32
         np.testing.assert_allclose(small, full, rtol=2e-7, atol=1e-7)
+
+
+def test_decoding_in_chunks_is_decoding_the_whole_image(tmp_path):
+    """An image of more pixels than one decoding chunk (the last chunk padded) decodes to the values
+    of the transfer function applied to the whole image at once, bit for bit."""
+    data = np.random.default_rng(4).integers(0, 65536, (600, 480, 3)).astype(np.uint16)  # 288,000 pixels
+    write(tmp_path / "big.png", data, oiio.UINT16, ("R", "G", "B"))
+    encoded, _ = read_linear_rgb(tmp_path / "big.png", "linear")
+    decoded, _ = read_linear_rgb(tmp_path / "big.png")
+    np.testing.assert_array_equal(decoded, np.asarray(srgb_decode(encoded)))
+    assert np.array_equal(read_linear_rgb(tmp_path / "big.png", dtype=np.float32)[0], decoded.astype(np.float32))
