@@ -14,8 +14,10 @@ import dataclasses
 import time
 import warnings
 
+import jax.numpy as jnp
 import numpy as np
 
+from .._batching import bucket_size, map_batches
 from .._validate import SkinfitInputError
 from ..colorimetry import (
     DEFAULT_ILLUMINANT,
@@ -550,11 +552,19 @@ def _parabola_minimum(grid: np.ndarray, values: np.ndarray) -> float:
     return float(x[1] + np.clip(offset, -step, step))
 
 
+#: Pixels per chunk of the encoding that the face models see.
+_ENCODE_CHUNK = 1 << 18
+
+
 def _segment(rgb: np.ndarray) -> FaceSegmentation | None:
     """The faces of a linear sRGB image, on its sRGB encoding (as the face models saw photos);
     None where the runtime is missing."""
     try:
-        return segment_faces(np.asarray(srgb_encode(np.clip(rgb, 0.0, 1.0).astype(np.float32))))
+        # encoded a chunk of pixels at a time (in few chunk sizes): whole, a 48 MP photo's JAX temporaries take gigabytes
+        flat = rgb.reshape(-1, 3)
+        (encoded,) = map_batches(lambda x: (srgb_encode(jnp.clip(x.astype(jnp.float32), 0.0, 1.0)),), (flat,),
+                                 bucket_size(len(flat), _ENCODE_CHUNK))
+        return segment_faces(encoded.reshape(rgb.shape))
     except SegmentationUnavailable as error:
         warnings.warn(f"{error}: fitting every pixel, the skin model's gamut deciding what is skin", stacklevel=3)
         return None

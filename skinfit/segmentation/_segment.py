@@ -107,12 +107,12 @@ def segment_faces(image: np.ndarray) -> FaceSegmentation:
     were trained on such photos). No face found: an empty ``faces`` and an all-background map.
     A photo longer than ``MAX_SIDE`` is segmented on a box-downscaled copy; the boxes, landmarks
     and region map come back at the photo's size."""
-    image = np.asarray(image)
+    image = np.asarray(image, np.float32)  # no copy of a float32 photo
     factor = int(np.ceil(max(image.shape[:2]) / MAX_SIDE))
     if factor == 1:
-        return _segment(np.clip(image.astype(np.float32), 0.0, 1.0))
+        return _segment(np.clip(image, 0.0, 1.0))
     h, w = image.shape[:2]
-    found = _segment(np.clip(box_downscale(image.astype(np.float32), factor), 0.0, 1.0))
+    found = _segment(np.clip(box_downscale(image, factor), 0.0, 1.0))
     rows = np.minimum(np.arange(h) // factor, found.region.shape[0] - 1)  # nearest; the remainder as the edge
     cols = np.minimum(np.arange(w) // factor, found.region.shape[1] - 1)
     faces = tuple(dataclasses.replace(f, box=f.box * factor, landmarks=f.landmarks * factor) for f in found.faces)
