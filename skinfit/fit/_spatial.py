@@ -39,8 +39,12 @@ def smooth_field(values: np.ndarray, weights: np.ndarray, sigma_px: float) -> np
         return coarse[:h, :w].astype(np.float32)
     # block centres sit at (i + 0.5) block - 0.5 in pixels: interpolate linearly between them,
     # first along the rows (to (h, wb)), then along the columns
+    # (the second pass a band of rows at a time: whole, its float64 products take ~40 bytes a pixel)
     along_rows = _interpolate_axis0(coarse, (np.arange(h) + 0.5) / block - 0.5)
-    return _interpolate_axis0(along_rows.T, (np.arange(w) + 0.5) / block - 0.5).T.astype(np.float32)
+    columns, field = (np.arange(w) + 0.5) / block - 0.5, np.empty((h, w), np.float32)
+    for top in range(0, h, band):
+        field[top : top + band] = _interpolate_axis0(along_rows[top : top + band].T, columns).T
+    return field
 
 
 def _interpolate_axis0(table: np.ndarray, positions: np.ndarray) -> np.ndarray:
