@@ -31,7 +31,7 @@ from . import _disk_cache
 
 _CACHE_NAME = "programs"
 
-#: Custom-call targets allowed in one program before it is left to plain ``jax.jit``.
+#: Rounds of allowing the custom calls an export reports before a program is left to plain ``jax.jit``.
 _MAX_CUSTOM_CALLS = 8
 
 
@@ -79,7 +79,7 @@ class PersistentJit:
             program = self._programs[key] = self._jitted if exported is None else jax.jit(exported.call)
         return program(*args) if program is self._jitted else program(*leaves)
 
-    def _exported(self, tree, specs, static, key) -> export.Exported:
+    def _exported(self, tree, specs, static, key) -> export.Exported | None:
         disk_key = (f"{self._function.__module__}.{self._function.__qualname__}", str(key), jax.default_backend(),
                     bool(jax.config.jax_enable_x64), jax.__version__, importlib.metadata.version("jaxlib"), _package_digest())
         stored = _disk_cache.load_arrays(_CACHE_NAME, disk_key)

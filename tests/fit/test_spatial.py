@@ -43,3 +43,20 @@ def test_speckle_fraction_counts_isolated_pixels():
     assert speckle_fraction(values, valid) == 0.0
     values[[5, 20, 30], [5, 20, 30]] = 0.3
     assert np.isclose(speckle_fraction(values, valid), 3 / 2500)
+
+
+def test_smooth_field_interpolates_back_in_bands_to_the_whole_images_values(monkeypatch):
+    """The field is interpolated back to the image a band of rows at a time (bounded temporaries):
+    on an image of several bands the values are those of one interpolation over the whole image."""
+    from skinfit.fit import _spatial
+
+    rng = np.random.default_rng(1)
+    values, weights = rng.normal(size=(700, 300)), (rng.random((700, 300)) > 0.5).astype(float)
+    tables = []  # the coarse field (blocks of 4 pixels at sigma 9) goes first to the interpolation
+    interpolate = _spatial._interpolate_axis0
+    monkeypatch.setattr(_spatial, "_interpolate_axis0", lambda table, at: tables.append(table) or interpolate(table, at))
+    field = smooth_field(values, weights, sigma_px=9.0)
+    along_rows = interpolate(tables[0], (np.arange(700) + 0.5) / 4 - 0.5)
+    whole = interpolate(along_rows.T, (np.arange(300) + 0.5) / 4 - 0.5).T.astype(np.float32)
+    assert field.dtype == np.float32 and len(tables) > 2  # several bands
+    np.testing.assert_array_equal(field, whole)
