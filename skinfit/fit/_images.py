@@ -666,19 +666,26 @@ def _regularise(rgb, gains, maps, field, options, sd, size):
     model = options["model"]
     centres, sds = np.empty((*fitted.shape, 2), np.float32), []  # float32: a 4096 x 4096 image's centres in 134 MB
     population = model.prior
+    rows, halo = max(1, _CLASSIFY_CHUNK // max(fitted.shape[1], 1)), size // 2
     for i, name in enumerate(("melanin", "haemoglobin")):
-        log_c = np.log(np.maximum(maps[name], np.float32(1e-9)))
-        fill = smooth_field(log_c, fitted, _field_sigma(log_c.shape))
-        centre = neighbourhood_median(log_c, fitted, size, fill)
+        fill = smooth_field(np.log(np.maximum(maps[name], np.float32(1e-9))), fitted, _field_sigma(fitted.shape))
         if population is not None and options.get("prior", True) is not False:
             p_mean, p_sd = population.moments(name)
             precision = 1.0 / sd**2 + 1.0 / p_sd**2
-            centre, combined = (centre / sd**2 + p_mean / p_sd**2) / precision, np.sqrt(1.0 / precision)
+            combined = np.sqrt(1.0 / precision)
         else:
             combined = sd
-        centres[..., i] = centre
+        # the medians a band of rows at a time, with the rows the neighbourhood reaches beyond it
+        # (the same values as over the whole image, without its full-size temporaries)
+        for top in range(0, fitted.shape[0], rows):
+            lo, hi = max(0, top - halo), min(fitted.shape[0], top + rows + halo)
+            log_c = np.log(np.maximum(maps[name][lo:hi], np.float32(1e-9)))
+            centre = neighbourhood_median(log_c, fitted[lo:hi], size, fill[lo:hi])[top - lo : top - lo + rows]
+            if population is not None and options.get("prior", True) is not False:
+                centre = (centre / sd**2 + p_mean / p_sd**2) / precision
+            centres[top : top + rows, :, i] = centre
         sds.append(combined)
-        del log_c, fill, centre
+        del fill
     _refit(rgb, gains, maps, fitted, options, prior_mean=centres, prior_sd=np.array(sds),
            shading_reference=field, prior=True, initial=(maps["melanin"], maps["haemoglobin"]))
 

@@ -407,8 +407,8 @@ def test_the_compiled_straggler_tail_matches_the_gathered_rounds(monkeypatch):
 
 def test_blend_groups_and_bands_leave_the_fit_unchanged(monkeypatch):
     """Two people of other blends: each group of pixels is fitted on maps of its own and merged
-    (the smaller first, kept compactly, so that one full set of maps is held), and the statuses and
-    standard errors go in bands of rows. Each person's maps are those of a fit of that person
+    (the smaller first, kept compactly, so that one full set of maps is held), and the statuses,
+    standard errors and the regularisation's neighbourhood medians go in bands of rows. Each person's maps are those of a fit of that person
     alone at the same blend (to the solver's precision: the darker one's group starts from the
     dark-skin table), and bands of one row change nothing, bit for bit."""
     from benchmarks.fit_image_box import colour_science_render
