@@ -348,8 +348,9 @@ def spline_rgb(coefficients, roots):
     return tuple(jnp.stack([channel[i] for channel in channels], axis=-1) for i in range(3))
 
 
-def spline_channels(coefficients, u, v):
-    """The spline at roots u, v (n,) in [0, 1], per channel: ((value, d/du, d/dv) of r, of g, of b).
+def spline_channels(coefficients, u, v, second: bool = False):
+    """The spline at roots u, v (n,) in [0, 1], per channel: ((value, d/du, d/dv) of r, of g, of b);
+    with ``second``, each channel's tuple also holds (d2/du2, d2/du dv, d2/dv2).
 
     One channel at a time over columns of the gathered coefficients, Horner in b then in a:
     XLA's CPU backend runs these plain (n,) products several times faster than contractions over
@@ -367,7 +368,14 @@ def spline_channels(coefficients, u, v):
         value = along_b[0] + a * (along_b[1] + a * (along_b[2] + a * along_b[3]))
         d_u = (along_b[1] + a * (2.0 * along_b[2] + 3.0 * a * along_b[3])) * cells
         d_v = (along_db[0] + a * (along_db[1] + a * (along_db[2] + a * along_db[3]))) * cells
-        channels.append((value, d_u, d_v))
+        if not second:
+            channels.append((value, d_u, d_v))
+            continue
+        along_ddb = [2.0 * k(p, 2) + 6.0 * b * k(p, 3) for p in range(4)]
+        d_uu = (2.0 * along_b[2] + 6.0 * a * along_b[3]) * cells**2
+        d_uv = (along_db[1] + a * (2.0 * along_db[2] + 3.0 * a * along_db[3])) * cells**2
+        d_vv = (along_ddb[0] + a * (along_ddb[1] + a * (along_ddb[2] + a * along_ddb[3]))) * cells**2
+        channels.append((value, d_u, d_v, d_uu, d_uv, d_vv))
     return tuple(channels)
 
 

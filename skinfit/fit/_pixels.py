@@ -20,8 +20,10 @@ gains are one value for the whole image (given, or fitted once by ``skinfit.fit`
    shading is t.m / m.m), the residual relative to the pixel's brightness so that dark and bright
    pixels weigh alike, the prior on ln C_m and ln C_h as two more residual rows (MAP; weights 0
    without one), and the roots projected onto the box; converged when the undamped Gauss-Newton
-   step still to go is at most ``step_tol``. The others are gathered for more steps, and what
-   remains goes to optimistix's Levenberg-Marquardt;
+   step still to go is at most ``step_tol``. The others are gathered for more steps, Newton's
+   (the residuals' exact curvature from the spline's second derivatives: colours the model misses
+   near the fold converge quadratically there, not linearly), and what remains goes to
+   optimistix's Levenberg-Marquardt;
 3. optionally (``exact_steps``), Gauss-Newton steps on the exact forward model remove the
    spline's last ~1e-7.
 
@@ -71,12 +73,13 @@ class PixelStatus(enum.IntEnum):
     SPECULAR = 8  #: a glint: the neighbourhood's skin colour plus white light, not a diffuse skin colour
 
 
-def _spline_colour(coefficients):
-    """Colour of the spline at roots u, v (n,): (value, d/du, d/dv), each a tuple of 3 channels."""
+def _spline_colour(coefficients, second: bool = False):
+    """Colour of the spline at roots u, v (n,): (value, d/du, d/dv), each a tuple of 3 channels;
+    with ``second`` also (d2/du2, d2/du dv, d2/dv2) (Newton steps, ``_projected``)."""
 
     def colour(u, v):
-        channels = spline_channels(coefficients, u, v)
-        return tuple(tuple(channel[i] for channel in channels) for i in range(3))
+        channels = spline_channels(coefficients, u, v, second=second)
+        return tuple(tuple(channel[i] for channel in channels) for i in range(len(channels[0])))
 
     return colour
 
@@ -104,7 +107,8 @@ def _dot3(a, b):
 class _Normal(eqx.Module):
     """What a pixel's iterate carries besides its roots and cost (each (n,)): the 2x2 normal
     equations J^T J (uu, uv, vv) and J^T r (gu, gv) of the relative residual r (shading
-    eliminated), the best shading and the model colour (3 channels)."""
+    eliminated), the best shading and the model colour (3 channels); for Newton steps also the
+    residuals' own curvature S = sum_i r_i Hessian(r_i) (suu, suv, svv), None otherwise."""
 
     uu: jax.Array
     uv: jax.Array
@@ -113,6 +117,7 @@ class _Normal(eqx.Module):
     gv: jax.Array
     shading: jax.Array
     colour: tuple
+    curvature: tuple | None = None
 
 
 def _projected(colour, u, v, target, scale, prior) -> LockstepState:
@@ -120,8 +125,11 @@ def _projected(colour, u, v, target, scale, prior) -> LockstepState:
     shading k = t.m / m.m, and the prior's rows (``_prior_rows``), reduced to the normal
     equations of the two roots: a ``LockstepState`` with point (u, v), the cost |r|^2 and a ``_Normal``
     carry. Only these ten numbers per pixel travel between steps: carrying r and J (13 more) made
-    every kept-or-refused selection recompute the residual."""
-    m, dm_u, dm_v = colour(u, v)
+    every kept-or-refused selection recompute the residual.
+
+    A ``colour`` that also returns second derivatives (``_spline_colour(..., second=True)``) adds
+    the residuals' exact curvature S (three numbers more), for Newton steps (``_step``)."""
+    m, dm_u, dm_v, *second = colour(u, v)
     mm = _dot3(m, m)
     tm = _dot3(target, m)
     k = tm / mm
@@ -144,7 +152,43 @@ def _projected(colour, u, v, target, scale, prior) -> LockstepState:
     row_k, a_u, a_v = weight_k * (jnp.log(safe_k) - centre_k), weight_k * dk_u / safe_k, weight_k * dk_v / safe_k
     cost, gu, gv = cost + row_k * row_k, gu + a_u * row_k, gv + a_v * row_k
     uu, uv, vv = uu + a_u * a_u, uv + a_u * a_v, vv + a_v * a_v
-    return LockstepState((u, v), cost, _Normal(uu, uv, vv, gu, gv, k, m))
+    curvature = None
+    if second:
+        curvature = _residual_curvature(target, scale, m, (dm_u, dm_v), second, k, (dk_u, dk_v), r,
+                                        (u, v, weight_u, weight_v, row_u, row_v), (safe_k, weight_k, row_k))
+    return LockstepState((u, v), cost, _Normal(uu, uv, vv, gu, gv, k, m, curvature))
+
+
+def _residual_curvature(target, scale, m, dm, d2m, k, dk, r, root_rows, shading_row):
+    """S = sum_i r_i Hessian(r_i) over the colour rows r = (t - k m) scale (k = t.m / m.m, the
+    shading eliminated), the roots' prior rows and the shading's row: (suu, suv, svv), each (n,).
+
+    With N = t.m and D = m.m, k_ab = N_ab / D - (N_a D_b + N_b D_a) / D^2 - N D_ab / D^2
+    + 2 N D_a D_b / D^3; a colour row's Hessian is -scale (k_ab m + k_a m_b + k_b m_a + k m_ab).
+    A prior row w (ln u - c) has second derivative -w / u^2, the shading's row
+    w (k_ab / k - k_a k_b / k^2)."""
+    (dm_u, dm_v), (dm_uu, dm_uv, dm_vv), (dk_u, dk_v) = dm, d2m, dk
+    mm, tm = _dot3(m, m), _dot3(target, m)
+    d_mm = {"u": 2.0 * _dot3(m, dm_u), "v": 2.0 * _dot3(m, dm_v)}
+    d_tm = {"u": _dot3(target, dm_u), "v": _dot3(target, dm_v)}
+    first = {"u": dm_u, "v": dm_v}
+    rm = {"u": _dot3(r, dm_u), "v": _dot3(r, dm_v)}
+    r_dot_m, slope = _dot3(r, m), {"u": dk_u, "v": dk_v}
+    u, v, weight_u, weight_v, row_u, row_v = root_rows
+    safe_k, weight_k, row_k = shading_row
+
+    def entry(a, b, d2):
+        d2_tm = _dot3(target, d2)
+        d2_mm = 2.0 * (_dot3(first[a], first[b]) + _dot3(m, d2))
+        k_ab = (d2_tm / mm - (d_tm[a] * d_mm[b] + d_tm[b] * d_mm[a]) / mm**2 - tm * d2_mm / mm**2
+                + 2.0 * tm * d_mm[a] * d_mm[b] / mm**3)
+        colour_rows = -scale * (k_ab * r_dot_m + slope[a] * rm[b] + slope[b] * rm[a] + k * _dot3(r, d2))
+        return colour_rows + row_k * weight_k * (k_ab / safe_k - slope[a] * slope[b] / safe_k**2), k_ab
+
+    suu, _ = entry("u", "u", dm_uu)
+    suv, _ = entry("u", "v", dm_uv)
+    svv, _ = entry("v", "v", dm_vv)
+    return suu - row_u * weight_u / u**2, suv, svv - row_v * weight_v / v**2
 
 
 #: Lower bound of the roots in the solver: C = max * root^2 has zero slope at root 0, which would
@@ -152,14 +196,32 @@ def _projected(colour, u, v, target, scale, prior) -> LockstepState:
 _ROOT_FLOOR = 1e-3
 
 
-def _step(state: LockstepState, damping):
+def _step(state: LockstepState, damping, newton: bool = True):
     """The damped Gauss-Newton step (Marquardt's scaling) projected on the box: a root on a bound
     that its step pushes out of the box stays there and the other takes its own one-variable step
-    (clipping the joint step instead stalls on the bound)."""
+    (clipping the joint step instead stalls on the bound).
+
+    Where the state carries the residuals' curvature S (and ``newton``), the damped Newton step
+    (J^T J + S + damping diag(J^T J)) instead, where that matrix is positive definite (elsewhere
+    Gauss-Newton's): colours the model misses by ~1 % near the fold, where J^T J is nearly
+    singular, converge quadratically instead of linearly (measured on a real capture's
+    regularised refit: 4,884 of 33,618 stragglers left after one two-step round, not 19,348)."""
     (u, v), n = state.point, state.carry
-    uu, uv, vv, gu, gv = n.uu, n.uv, n.vv, n.gu, n.gv
-    floor = 1e-12 * jnp.maximum(uu, vv) + 1e-300  # against a dead direction
-    du, dv = uu * (1.0 + damping) + floor, vv * (1.0 + damping) + floor
+    floor = 1e-12 * jnp.maximum(n.uu, n.vv) + 1e-300  # against a dead direction
+    gauss_newton = _box_step(u, v, n.uu * (1.0 + damping) + floor, n.uv, n.vv * (1.0 + damping) + floor, n.gu, n.gv)
+    if not newton or n.curvature is None:
+        return gauss_newton
+    suu, suv, svv = n.curvature
+    du, dv, uv = n.uu * (1.0 + damping) + suu + floor, n.vv * (1.0 + damping) + svv + floor, n.uv + suv
+    positive = (du > 0.0) & (dv > 0.0) & (du * dv - uv * uv > 1e-12 * jnp.maximum(du, dv) ** 2)
+    safe = lambda a: jnp.where(positive, a, 1.0)  # noqa: E731  (no division by an indefinite pivot)
+    newton_u, newton_v = _box_step(u, v, safe(du), jnp.where(positive, uv, 0.0), safe(dv), n.gu, n.gv)
+    return jnp.where(positive, newton_u, gauss_newton[0]), jnp.where(positive, newton_v, gauss_newton[1])
+
+
+def _box_step(u, v, du, uv, dv, gu, gv):
+    """The step s solving [[du, uv], [uv, dv]] s = -(gu, gv) (each (n,)) projected on the box
+    (``_step``); 0 where it is not finite."""
     det = du * dv - uv * uv
     step_u, step_v = -(dv * gu - uv * gv) / det, -(du * gv - uv * gu) / det
     out_u = ((u <= _ROOT_FLOOR) & (step_u < 0.0)) | ((u >= 1.0) & (step_u > 0.0))
@@ -198,6 +260,7 @@ def _gauss_newton(colour, roots, target, damping, steps, prior):
     the gamut, where the steps shrink only linearly).
 
     ``prior`` (n, 6): per pixel the centres and weights of the prior rows (``_prior_rows``).
+    A ``colour`` with second derivatives makes the steps Newton's (``_step``).
 
     Returns the roots (n, 2), the shading, ``remaining``, the square root of the cost (relative
     residual and prior rows) (each (n,)), the fitted colour (n, 3), the damping (n,) and the
@@ -218,7 +281,7 @@ def _gauss_newton(colour, roots, target, damping, steps, prior):
     start = jnp.clip(roots, _ROOT_FLOOR, 1.0)
     start = _projected(colour, start[:, 0], start[:, 1], target, scale, prior)
     state, damping = jax.lax.fori_loop(0, steps, step, (start, damping))
-    step_u, step_v = _step(state, 0.0)
+    step_u, step_v = _step(state, 0.0, newton=False)  # the same estimate whichever steps were taken
     remaining = jnp.where(_stationary(state), 0.0, jnp.maximum(jnp.abs(step_u), jnp.abs(step_v)))
     n = state.carry
     fitted = jnp.stack([n.shading * c for c in n.colour], axis=-1)
@@ -234,6 +297,12 @@ _INITIAL_DAMPING = 1e-5
 @persistent_jit
 def _spline_chunk(coefficients, roots, target, damping, prior, steps):
     return _gauss_newton(_spline_colour(coefficients), roots, target, damping, steps, prior)
+
+
+@persistent_jit
+def _newton_chunk(coefficients, roots, target, damping, prior, steps):
+    """``_spline_chunk`` with Newton steps (the residuals' exact curvature): for the stragglers."""
+    return _gauss_newton(_spline_colour(coefficients, second=True), roots, target, damping, steps, prior)
 
 
 @persistent_jit
@@ -259,7 +328,7 @@ def _straggler_tail(coefficients, roots, target, damping, prior, steps, rounds, 
     a pixel that stops keeps its state. The same arithmetic per pixel
     as the gathered rounds of ``_solve``; returns ``_gauss_newton``'s outputs and which pixels
     would still go on (n,)."""
-    colour = _spline_colour(coefficients)
+    colour = _spline_colour(coefficients, second=True)  # Newton steps, as the gathered rounds
     first = _gauss_newton(colour, roots, target, damping, 0, prior)  # the pixels' state, no step
     moving = jnp.ones(len(roots), bool)
 
@@ -545,6 +614,7 @@ def _solve(table, target, prior, steps, straggler_steps, max_rounds, lm_max_step
     normal matrix (n, 3)."""
     coefficients = jnp.asarray(table.coefficients)
     spline = lambda count: lambda t, r, d, p: _spline_chunk(coefficients, r, t, d, p, count)  # noqa: E731
+    newton = lambda count: lambda t, r, d, p: _newton_chunk(coefficients, r, t, d, p, count)  # noqa: E731
     if initial is not None:  # a refit from an earlier fit: its roots, its branch
         out = map_batches(spline(steps), (target, initial, np.full(len(target), _INITIAL_DAMPING), prior), size, progress, "fitting pixels")
         second, two = initial, np.zeros(len(target), bool)
@@ -582,7 +652,7 @@ def _solve(table, target, prior, steps, straggler_steps, max_rounds, lm_max_step
     rounds = 0
     while moving.size > _TAIL_FROM and rounds < max_rounds:  # gathered, so that converged pixels cost nothing more
         before = residual[moving]
-        more = map_batches(spline(straggler_steps), (target[moving], roots[moving], damping[moving], prior[moving]), _SUBSET_CHUNK)
+        more = map_batches(newton(straggler_steps), (target[moving], roots[moving], damping[moving], prior[moving]), _SUBSET_CHUNK)
         for full, part in zip(out, more):
             full[moving] = part
         moving = moving[_goes_on(remaining[moving], residual[moving], before, step_tol)]
