@@ -154,21 +154,21 @@ def _projected(colour, u, v, target, scale, prior) -> LockstepState:
     uu, uv, vv = uu + a_u * a_u, uv + a_u * a_v, vv + a_v * a_v
     curvature = None
     if second:
-        curvature = _residual_curvature(target, scale, m, (dm_u, dm_v), second, k, (dk_u, dk_v), r,
+        curvature = _residual_curvature(target, scale, m, mm, tm, (dm_u, dm_v), second, k, (dk_u, dk_v), r,
                                         (u, v, weight_u, weight_v, row_u, row_v), (safe_k, weight_k, row_k))
     return LockstepState((u, v), cost, _Normal(uu, uv, vv, gu, gv, k, m, curvature))
 
 
-def _residual_curvature(target, scale, m, dm, d2m, k, dk, r, root_rows, shading_row):
+def _residual_curvature(target, scale, m, mm, tm, dm, d2m, k, dk, r, root_rows, shading_row):
     """S = sum_i r_i Hessian(r_i) over the colour rows r = (t - k m) scale (k = t.m / m.m, the
-    shading eliminated), the roots' prior rows and the shading's row: (suu, suv, svv), each (n,).
+    shading eliminated; mm = m.m and tm = t.m as ``_projected`` has them), the roots' prior rows
+    and the shading's row: (suu, suv, svv), each (n,).
 
     With N = t.m and D = m.m, k_ab = N_ab / D - (N_a D_b + N_b D_a) / D^2 - N D_ab / D^2
     + 2 N D_a D_b / D^3; a colour row's Hessian is -scale (k_ab m + k_a m_b + k_b m_a + k m_ab).
     A prior row w (ln u - c) has second derivative -w / u^2, the shading's row
     w (k_ab / k - k_a k_b / k^2)."""
     (dm_u, dm_v), (dm_uu, dm_uv, dm_vv), (dk_u, dk_v) = dm, d2m, dk
-    mm, tm = _dot3(m, m), _dot3(target, m)
     d_mm = {"u": 2.0 * _dot3(m, dm_u), "v": 2.0 * _dot3(m, dm_v)}
     d_tm = {"u": _dot3(target, dm_u), "v": _dot3(target, dm_v)}
     first = {"u": dm_u, "v": dm_v}
@@ -183,12 +183,10 @@ def _residual_curvature(target, scale, m, dm, d2m, k, dk, r, root_rows, shading_
         k_ab = (d2_tm / mm - (d_tm[a] * d_mm[b] + d_tm[b] * d_mm[a]) / mm**2 - tm * d2_mm / mm**2
                 + 2.0 * tm * d_mm[a] * d_mm[b] / mm**3)
         colour_rows = -scale * (k_ab * r_dot_m + slope[a] * rm[b] + slope[b] * rm[a] + k * _dot3(r, d2))
-        return colour_rows + row_k * weight_k * (k_ab / safe_k - slope[a] * slope[b] / safe_k**2), k_ab
+        return colour_rows + row_k * weight_k * (k_ab / safe_k - slope[a] * slope[b] / safe_k**2)
 
-    suu, _ = entry("u", "u", dm_uu)
-    suv, _ = entry("u", "v", dm_uv)
-    svv, _ = entry("v", "v", dm_vv)
-    return suu - row_u * weight_u / u**2, suv, svv - row_v * weight_v / v**2
+    return (entry("u", "u", dm_uu) - row_u * weight_u / u**2, entry("u", "v", dm_uv),
+            entry("v", "v", dm_vv) - row_v * weight_v / v**2)
 
 
 #: Lower bound of the roots in the solver: C = max * root^2 has zero slope at root 0, which would
