@@ -12,6 +12,7 @@ from pathlib import Path
 
 import numpy as np
 
+from .. import _scratch as scratch
 from ..colorimetry import srgb_encode
 from ..fit import fit_image
 from ..io import read_linear_rgb, write_exr, write_png
@@ -72,12 +73,12 @@ def write_fit(fit, out: Path, prefix: str, source: str, illuminant: str, photo: 
     returns the maps path."""
     # each picture is made a band of rows at a time as it is written: no full-size copies beside the maps
     under = fit.fitted_linear_rgb if photo is None else photo
-    write_png(out / f"{prefix}reconstructed.png", _Rows(fit.fitted_linear_rgb.shape, lambda rows: encoded_srgb(fit.fitted_linear_rgb[rows])))
-    write_png(out / f"{prefix}dE2000.png", _Rows((*fit.residual_dE2000.shape, 3), lambda rows: delta_e_image(fit.residual_dE2000[rows])))
+    write_png(out / f"{prefix}reconstructed.png", scratch.Rows(fit.fitted_linear_rgb.shape, lambda rows: encoded_srgb(fit.fitted_linear_rgb[rows])))
+    write_png(out / f"{prefix}dE2000.png", scratch.Rows((*fit.residual_dE2000.shape, 3), lambda rows: delta_e_image(fit.residual_dE2000[rows])))
     write_png(out / f"{prefix}skin_mask.png", fit.skin_mask[..., None])  # one channel, 0 or 255
     if fit.region is not None:
         write_png(out / f"{prefix}regions.png",
-                  _Rows(under.shape, lambda rows: region_overlay(encoded_srgb(np.asarray(under[rows], np.float32)), fit.region[rows])))
+                  scratch.Rows(under.shape, lambda rows: region_overlay(encoded_srgb(np.asarray(under[rows], np.float32)), fit.region[rows])))
     attributes = {
         "skinfit:source": source,
         "skinfit:illuminant": illuminant,
@@ -91,17 +92,6 @@ def write_fit(fit, out: Path, prefix: str, source: str, illuminant: str, photo: 
     maps_path = out / f"{prefix}maps.exr"
     write_exr(maps_path, fit.maps(), attributes)
     return maps_path
-
-
-class _Rows:
-    """An image (``shape``) made a band of rows at a time: ``image[rows]`` is ``rows_of(rows)``
-    (what ``write_png`` reads), so that no full-size copy is held."""
-
-    def __init__(self, shape, rows_of):
-        self.shape, self._rows_of = tuple(shape), rows_of
-
-    def __getitem__(self, rows: slice) -> np.ndarray:
-        return self._rows_of(rows)
 
 
 def encoded_srgb(linear: np.ndarray, rows: int = 256) -> np.ndarray:

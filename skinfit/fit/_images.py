@@ -17,7 +17,8 @@ import warnings
 import jax.numpy as jnp
 import numpy as np
 
-from .._batching import bucket_size, map_batches
+from .. import _scratch as scratch
+from .._batching import bucket_size
 from .._validate import SkinfitInputError
 from ..colorimetry import (
     DEFAULT_ILLUMINANT,
@@ -111,8 +112,8 @@ class ImageFit:
     def summary(self) -> dict[str, float]:
         """Pixels, fitted fraction, median and 95th-percentile CIEDE2000 of the fitted pixels,
         the blend and white balance, time."""
-        fitted = self.status == PixelStatus.SUCCESS
-        delta_e = self.residual_dE2000[fitted]
+        fitted = self.skin_mask
+        delta_e = _gathered(self.residual_dE2000, fitted)  # a band at a time: out-of-core maps stay out
         return {
             "pixels": int(self.status.size),
             "fitted": int(fitted.sum()),
@@ -120,7 +121,7 @@ class ImageFit:
             "median_dE2000": float(np.median(delta_e)) if delta_e.size else float("nan"),
             "p95_dE2000": float(np.percentile(delta_e, 95)) if delta_e.size else float("nan"),
             # the blend of the fitted pixels (the map holds 0 where nothing was fitted)
-            "melanin_blend": round(float(np.median(self.melanin_blend[fitted])), 6) if fitted.any() else float("nan"),
+            "melanin_blend": round(float(np.median(_gathered(self.melanin_blend, fitted))), 6) if fitted.any() else float("nan"),
             "blends": [dict(b) for b in self.blends],
             "white_balance": list(self.white_balance),
             "white_balance_sd": None if self.white_balance_sd is None else list(self.white_balance_sd),
@@ -149,6 +150,7 @@ class _Stages:
         try:
             yield
         finally:
+            scratch.release_pages(trim_heap=True)  # what the stage touched of out-of-core arrays, and its freed heap
             self.seconds[name] = self.seconds.get(name, 0.0) + time.perf_counter() - start
 
 
@@ -175,6 +177,7 @@ def fit_image(
     method: str | None = None,
     model: SkinModel | None = None,
     progress: bool | None = None,
+    out_of_core: bool | None = None,
     **options,
 ) -> ImageFit:
     """Fit melanin, haemoglobin and shading maps to a photo or albedo image.
@@ -228,6 +231,10 @@ def fit_image(
             Reconstructions and renders go back through the matrix to the camera's values.
         model: the ``SkinModel`` (default: the package default); ``method`` overrides its forward
             method as in ``fit_pixels``.
+        out_of_core: keep the input (when read from a file) and the maps in temporary files mapped
+            from disk, read and written a band of rows at a time, so that the process's memory is
+            set by a band, not by the image (``skinfit._scratch``); default: from 8 MP on (or
+            ``$SKINFIT_OUT_OF_CORE``). The maps come back as arrays mapped from those files.
         **options: passed to ``fit_pixels`` (prior, colour_noise, max_delta_e, chunk_size, ...).
 
     Spatial coherence: the fold's branches differ in shading by 2-5x, and shading varies smoothly
@@ -245,11 +252,12 @@ def fit_image(
     if _is_path(image):
         with stage("read"):
             # float32: a file holds no more (float, half or integer); decoded in float64 a chunk at a time
-            rgb, alpha, encoding = read_image(image, input_space, np.float32)
+            rgb, alpha, encoding = read_image(image, input_space, np.float32, out_of_core=out_of_core)
     else:
         rgb = np.asarray(image, dtype=float)
         if rgb.ndim != 3 or rgb.shape[-1] != 3:
             raise SkinfitInputError(f"expected an image of shape (h, w, 3), got {rgb.shape}")
+    on_disk = scratch.out_of_core(rgb.shape[0] * rgb.shape[1], out_of_core)
     if _is_path(mask):
         mask = read_mask(mask)
     if mask is not None:
@@ -349,11 +357,11 @@ def fit_image(
         if dark_box:
             group["table"] = colour_table(blend, illuminant, DARK_MELANIN_MAX, DARK_HAEMOGLOBIN_MAX, model=model)
             dark |= where
-        maps, field = _fit_one_blend(rgb, gains, where, group, regularisation, progress, stage)
+        maps, field = _fit_one_blend(rgb, gains, where, group, regularisation, progress, stage, on_disk)
         if i < len(groups) - 1:
             earlier.append((where, {k: v[where] for k, v in maps.items()}, field[where]))
             maps = field = None
-    field = np.array(field, dtype=float)
+    field = np.array(field, dtype=np.float32) if not scratch.is_on_disk(field) else field  # writable, the groups' parts go in
     for where, values, part_field in earlier:
         for k, v in values.items():
             maps[k][where] = v
@@ -373,11 +381,12 @@ def fit_image(
                     blends=tuple({"label": int(k), **e.as_dict()} for k, e in estimates.items()), stage_seconds=stage.seconds)
 
 
-def _fit_one_blend(rgb, gains, mask, options, regularisation, progress, stage):
+def _fit_one_blend(rgb, gains, mask, options, regularisation, progress, stage, on_disk=False):
     """The maps and shading field of the pixels ``mask`` at one blend: the first fit, the
-    branches chosen against the shading field, the spatial regularisation (timed by ``stage``)."""
+    branches chosen against the shading field, the spatial regularisation (timed by ``stage``);
+    ``on_disk``: the maps out of core (``skinfit._scratch``)."""
     with stage("first fit"):
-        maps = _fit_in_bands(rgb, gains, mask, options, progress)
+        maps = _fit_in_bands(rgb, gains, mask, options, progress, on_disk=on_disk)
     with stage("branches against the shading field"):
         if options.get("shading_reference") is None:
             field = _coherent_branches(rgb, gains, maps, options)
@@ -400,7 +409,7 @@ def _face_pixels(rgb, mask, people, options) -> dict[int, np.ndarray]:
     # pixels sorted by label, then split
     labels = people[fittable]
     order = np.argsort(labels, kind="stable")
-    labels, pixels = labels[order], rgb[fittable][order]
+    labels, pixels = labels[order], _gathered(rgb, fittable)[order]
     found, starts, counts = np.unique(labels, return_index=True, return_counts=True)
     return {int(k): pixels[a : a + n] for k, a, n in zip(found, starts, counts) if k > 0 and n >= _MIN_FACE_PIXELS}
 
@@ -460,27 +469,24 @@ def _honest_standard_errors(maps, people, estimates, model, options, regularisat
     neighbourhood's (the same face, not more evidence), and each face's blend uncertainty (the
     slope d ln C / d beta at a fixed colour times the blend's sd), in quadrature. Sets the blend
     map's sd and returns it (h, w)."""
-    blend_sd = np.zeros(maps["melanin"].shape, np.float32)
-    fitted = maps["status"] <= PixelStatus.OUT_OF_MODEL
+    blend_sd = scratch.like(maps["melanin"])
     noise = options.get("colour_noise", 0.003)
     shrink = noise**2 / (noise**2 + MODEL_DISCREPANCY**2)  # the colour's information at the model's discrepancy
     population = model.prior if options.get("prior") is not False else None
-    slopes = {"melanin": np.zeros(blend_sd.shape, np.float32), "haemoglobin": np.zeros(blend_sd.shape, np.float32)}
-    if estimates:  # per-label lookup tables: one pass over the image whatever the number of faces
-        size = max(int(people.max()), max(estimates)) + 1
-        tables = np.zeros((3, size), np.float32)
-        for label, e in estimates.items():
-            tables[:, label] = (e.sd, e.melanin_log_slope * e.sd, e.haemoglobin_log_slope * e.sd)
-        owner = np.where(fitted & (people > 0), people, 0)  # faces are labelled from 1
-        known = np.zeros(size, bool)
-        known[list(estimates)] = True
+    # per-label lookup tables (faces are labelled from 1; 0: no face): one pass over the image whatever the number of faces
+    size = max(int(people.max()), max(estimates, default=0)) + 1
+    tables, known = np.zeros((3, size), np.float32), np.zeros(size, bool)
+    for label, e in estimates.items():
+        tables[:, label] = (e.sd, e.melanin_log_slope * e.sd, e.haemoglobin_log_slope * e.sd)
+        known[label] = True
+    for band in scratch.row_bands(*blend_sd.shape):  # bounded float64 temporaries
+        here = maps["status"][band] <= PixelStatus.OUT_OF_MODEL
+        owner = np.where(here & (people[band] > 0), people[band], 0)
         face = known[owner]
-        blend_sd[face] = tables[0][owner[face]]
+        blend_sd[band][face] = tables[0][owner[face]]
+        slopes = {"melanin": np.zeros(here.shape, np.float32), "haemoglobin": np.zeros(here.shape, np.float32)}
         slopes["melanin"][face] = tables[1][owner[face]]
         slopes["haemoglobin"][face] = tables[2][owner[face]]
-    rows = max(1, _CLASSIFY_CHUNK // max(blend_sd.shape[1], 1))
-    for band in (slice(top, top + rows) for top in range(0, blend_sd.shape[0], rows)):  # bounded float64 temporaries
-        here = fitted[band]
         for name, top, dark_top in (("melanin", MELANIN_MAX, DARK_MELANIN_MAX), ("haemoglobin", HAEMOGLOBIN_MAX, DARK_HAEMOGLOBIN_MAX)):
             top = np.where(dark[band][here], dark_top, top)
             value, se = maps[name][band][here].astype(float), maps[f"{name}_se"][band][here].astype(float)
@@ -492,7 +498,7 @@ def _honest_standard_errors(maps, people, estimates, model, options, regularisat
                 fit_precision = fit_precision + 1.0 / REGULARISATION[regularisation][0] ** 2
             with np.errstate(divide="ignore"):
                 colour = np.maximum(1.0 / np.maximum(se / np.maximum(value, 1e-12), 1e-12) ** 2 - fit_precision, 0.0) * shrink
-                log_se = np.sqrt(1.0 / (colour + prior_precision) + slopes[name][band][here].astype(float) ** 2)
+                log_se = np.sqrt(1.0 / (colour + prior_precision) + slopes[name][here].astype(float) ** 2)
             # an unidentified value reports the whole box, as the fit's own standard errors do
             maps[f"{name}_se"][band][here] = np.minimum(value * np.nan_to_num(log_se, nan=np.inf, posinf=np.inf), top)
     return blend_sd
@@ -507,9 +513,16 @@ _SCALE_GRID = np.linspace(np.log(0.4), np.log(2.5), 22)
 
 
 def _fittable(rgb, mask, options) -> np.ndarray:
-    """(h, w) bool: the pixels that a fit would take: not black, saturated, masked or invalid."""
-    screened, _ = screen_pixels(rgb.reshape(-1, 3), mask, options.get("black_level", 1e-4), options.get("saturation_level", 0.999))
-    return (screened == PixelStatus.SUCCESS).reshape(rgb.shape[:2])
+    """(h, w) bool: the pixels that a fit would take: not black, saturated, masked or invalid
+    (screened a band of rows at a time: no full-size temporaries)."""
+    h, w, _ = rgb.shape
+    fittable = np.empty((h, w), bool)
+    for rows in scratch.row_bands(h, w):
+        part = rgb[rows]
+        screened, _ = screen_pixels(part.reshape(-1, 3), None if mask is None else mask[rows], options.get("black_level", 1e-4),
+                                    options.get("saturation_level", 0.999))
+        fittable[rows] = (screened == PixelStatus.SUCCESS).reshape(part.shape[:2])
+    return fittable
 
 
 def _fittable_pixels(rgb, mask, options) -> np.ndarray:
@@ -517,7 +530,20 @@ def _fittable_pixels(rgb, mask, options) -> np.ndarray:
     fittable = _fittable(rgb, mask, options)
     if not fittable.any():
         raise SkinfitInputError("no pixel of the image can be fitted (all black, saturated, masked or invalid)")
-    return rgb[fittable]
+    return _gathered(rgb, fittable)
+
+
+def _gathered(image, where) -> np.ndarray:
+    """``image[where]`` ((n, ...) in row-major order), gathered a band of rows at a time (an
+    out-of-core image's pages given back after each)."""
+    h, w = where.shape
+    out = np.empty((int(np.count_nonzero(where)), *image.shape[2:]), image.dtype)
+    start = 0
+    for rows in scratch.row_bands(h, w):
+        part = image[rows][where[rows]]
+        out[start : start + len(part)] = part
+        start += len(part)
+    return out
 
 
 def _albedo_shading_scale(rgb, gains, mask, options, sample_size: int = 2048, trim: float = 0.8, seed: int = 0) -> float:
@@ -560,11 +586,16 @@ def _segment(rgb: np.ndarray) -> FaceSegmentation | None:
     """The faces of a linear sRGB image, on its sRGB encoding (as the face models saw photos);
     None where the runtime is missing."""
     try:
-        # encoded a chunk of pixels at a time (in few chunk sizes): whole, a 48 MP photo's JAX temporaries take gigabytes
-        flat = rgb.reshape(-1, 3)
-        (encoded,) = map_batches(lambda x: (srgb_encode(jnp.clip(x.astype(jnp.float32), 0.0, 1.0)),), (flat,),
-                                 bucket_size(len(flat), _ENCODE_CHUNK))
-        return segment_faces(encoded.reshape(rgb.shape))
+        # encoded a band of rows at a time, padded to one of few sizes (whole, a 48 MP photo's JAX
+        # temporaries take gigabytes), into an array out of core where the image is
+        h, w, _ = rgb.shape
+        size = bucket_size(h * w, max(_ENCODE_CHUNK, w))
+        encoded = scratch.like(rgb, np.float32)
+        for rows in scratch.row_bands(h, w, size):
+            part = rgb[rows].reshape(-1, 3)
+            padded = np.concatenate([part, np.repeat(part[-1:], size - len(part), axis=0)]) if len(part) < size else part
+            encoded[rows] = np.asarray(srgb_encode(jnp.clip(jnp.asarray(padded).astype(jnp.float32), 0.0, 1.0)))[: len(part)].reshape(-1, w, 3)
+        return segment_faces(encoded)
     except SegmentationUnavailable as error:
         warnings.warn(f"{error}: fitting every pixel, the skin model's gamut deciding what is skin", stacklevel=3)
         return None
@@ -598,27 +629,46 @@ def _shading_field(maps, sigma: float | None = None) -> np.ndarray:
     ``_field_sigma``), twice: the second leaves out pixels far from the first (those on the other
     branch)."""
 
-    fitted = _fitted(maps)
-    log_k = np.log(np.maximum(maps["shading"], np.float32(1e-12)))  # float32, as the maps
-    sigma = _field_sigma(log_k.shape) if sigma is None else sigma
-    field = smooth_field(log_k, fitted, sigma)
-    near = fitted & (np.abs(log_k - field) <= _FAR_FROM_FIELD)
-    return smooth_field(log_k, near, sigma)
+    shading = maps["shading"]
+    log_k = scratch.Rows(shading.shape, lambda rows: np.log(np.maximum(shading[rows], np.float32(1e-12))))  # float32, as the maps
+    fitted = scratch.Rows(shading.shape, lambda rows: _fitted({"status": maps["status"][rows]}))
+    sigma = _field_sigma(shading.shape) if sigma is None else sigma
+    field = smooth_field(log_k, fitted, sigma, out=scratch.like(shading))
+    near = scratch.Rows(shading.shape, lambda rows: fitted[rows] & (np.abs(log_k[rows] - field[rows]) <= _FAR_FROM_FIELD))
+    return smooth_field(log_k, near, sigma, out=field)  # in place: smooth_field reads all of near before it writes
 
 
 def _refit(rgb, gains, maps, where, options, band_pixels: int = 1 << 18, **overrides):
     """Fit again the pixels ``where`` (h, w) with ``overrides`` (per-pixel arrays (h, w, ...) are
     taken at those pixels) and write the results into ``maps``, ``band_pixels`` at a time (the
     working memory of a 4096 x 4096 image stays that of one band)."""
-    rows, cols = np.nonzero(where)
-    for start in range(0, rows.size, band_pixels):
-        index = rows[start : start + band_pixels], cols[start : start + band_pixels]
+    for index in _pixel_chunks(where, band_pixels):
         pick = lambda v: v[index] if isinstance(v, np.ndarray) and v.ndim >= 2 else v  # noqa: E731
         extra = {k: tuple(pick(a) for a in v) if isinstance(v, tuple) else pick(v) for k, v in overrides.items()}
         part = fit_pixels(rgb[index], white_balance=tuple(gains), progress=False, **dict(options, **extra))
         part["fitted_rgb"] = part["fitted_rgb"] * gains
         for k, v in part.items():
             maps[k][index] = v
+        scratch.release_pages()
+
+
+def _pixel_chunks(where, size: int):
+    """(rows, cols) of the pixels ``where`` (h, w) in row-major order, ``size`` at a time (the
+    chunks of ``np.nonzero(where)``), found a band of rows at a time: no index arrays of the
+    whole image (a 48 MP photo's would take 0.8 GB)."""
+    h, w = where.shape
+    pending_rows, pending_cols, count = [], [], 0
+    for rows in scratch.row_bands(h, w, max(size, w)):
+        r, c = np.nonzero(where[rows])
+        pending_rows.append(r + rows.start)
+        pending_cols.append(c)
+        count += r.size
+        while count >= size:
+            r, c = np.concatenate(pending_rows), np.concatenate(pending_cols)
+            yield r[:size], c[:size]
+            pending_rows, pending_cols, count = [r[size:]], [c[size:]], r.size - size
+    if count:
+        yield np.concatenate(pending_rows), np.concatenate(pending_cols)
 
 
 #: Scales of the coarser shading fields the branches are first chosen against, as fractions of the
@@ -646,11 +696,16 @@ def _coherent_branches(rgb, gains, maps, options) -> np.ndarray:
     table = options.get("table") or colour_table(options["melanin_blend"], options["illuminant"], model=options["model"])
     size = max(maps["shading"].shape)
     for sigma in (*(max(2.0, scale * size) for scale in _COARSE_FIELD_SCALES), None):
-        field = np.exp(_shading_field(maps, sigma))
-        # out-of-model pixels (hair, background) have no branch worth choosing, and are the slowest to refit;
-        # a face's own shading strays 1.1x from a coarse field at most pixels, but few have a colour there
-        far = _fitted(maps) & (np.abs(np.log(np.maximum(maps["shading"], np.float32(1e-12)) / field)) > _FAR_FROM_FIELD)
-        far[far] = _has_colour_at(table, rgb[far] / gains / field[far][:, None])
+        field = _shading_field(maps, sigma)
+        far = np.zeros(field.shape, bool)
+        for rows in scratch.row_bands(*field.shape):  # no full-size temporaries
+            field[rows] = np.exp(field[rows])
+            # out-of-model pixels (hair, background) have no branch worth choosing, and are the slowest to refit;
+            # a face's own shading strays 1.1x from a coarse field at most pixels, but few have a colour there
+            here = _fitted({"status": maps["status"][rows]})
+            here &= np.abs(np.log(np.maximum(maps["shading"][rows], np.float32(1e-12)) / field[rows])) > _FAR_FROM_FIELD
+            here[here] = _has_colour_at(table, rgb[rows][here] / gains / field[rows][here][:, None])
+            far[rows] = here
         if far.any():
             _refit(rgb, gains, maps, far, options, shading_reference=field)
     return field
@@ -664,11 +719,14 @@ def _regularise(rgb, gains, maps, field, options, sd, size):
     if not fitted.any():
         return
     model = options["model"]
-    centres, sds = np.empty((*fitted.shape, 2), np.float32), []  # float32: a 4096 x 4096 image's centres in 134 MB
+    # float32: a 4096 x 4096 image's centres in 134 MB (out of core with the maps)
+    centres, sds = scratch.like(maps["melanin"], shape=(*fitted.shape, 2)), []
     population = model.prior
     rows, halo = max(1, _CLASSIFY_CHUNK // max(fitted.shape[1], 1)), size // 2
     for i, name in enumerate(("melanin", "haemoglobin")):
-        fill = smooth_field(np.log(np.maximum(maps[name], np.float32(1e-9))), fitted, _field_sigma(fitted.shape))
+        values = maps[name]
+        log_values = scratch.Rows(fitted.shape, lambda band: np.log(np.maximum(values[band], np.float32(1e-9))))
+        fill = smooth_field(log_values, fitted, _field_sigma(fitted.shape), out=scratch.like(values))
         if population is not None and options.get("prior", True) is not False:
             p_mean, p_sd = population.moments(name)
             precision = 1.0 / sd**2 + 1.0 / p_sd**2
@@ -684,6 +742,7 @@ def _regularise(rgb, gains, maps, field, options, sd, size):
             if population is not None and options.get("prior", True) is not False:
                 centre = (centre / sd**2 + p_mean / p_sd**2) / precision
             centres[top : top + rows, :, i] = centre
+            scratch.release_pages()
         sds.append(combined)
         del fill
     _refit(rgb, gains, maps, fitted, options, prior_mean=centres, prior_sd=np.array(sds),
@@ -748,18 +807,20 @@ def _classify(rgb, gains, maps, field, model, dark=None):
     rows = max(1, _CLASSIFY_CHUNK // max(status.shape[1], 1))
     for top in range(0, status.shape[0], rows):  # per-pixel tests in bands: no full-size float64 temporaries
         band = slice(top, top + rows)
-        implausible = _implausible({k: v[band] for k, v in maps.items()}, field[band], dark[band], boxes)
+        implausible = _implausible({k: v[band] for k, v in maps.items()}, field[band].astype(float), dark[band], boxes)
         part = status[band]
         part[(part <= PixelStatus.OUT_OF_MODEL) & implausible] = PixelStatus.NOT_SKIN
+        scratch.release_pages()
 
     # glints: t = a L + s g, with L the local skin colour per unit shading and g the white (gains)
-    candidates = np.nonzero((status == PixelStatus.OUT_OF_MODEL) | (status == PixelStatus.NOT_SKIN))
-    skin = status == PixelStatus.SUCCESS
-    if candidates[0].size and skin.any():
+    candidates = scratch.Rows(status.shape, lambda band: (status[band] == PixelStatus.OUT_OF_MODEL) | (status[band] == PixelStatus.NOT_SKIN))
+    skin = scratch.Rows(status.shape, lambda band: status[band] == PixelStatus.SUCCESS)
+    if _any(candidates) and _any(skin):
         sigma = _field_sigma(status.shape)
-        fields = [smooth_field(maps["fitted_rgb"][..., c] / np.maximum(maps["shading"], np.float32(1e-12)), skin, sigma) for c in range(3)]
-        for start in range(0, candidates[0].size, _CLASSIFY_CHUNK):  # bounded temporaries on a 4096^2 image
-            index = tuple(i[start : start + _CLASSIFY_CHUNK] for i in candidates)
+        fitted_rgb, shading = maps["fitted_rgb"], maps["shading"]
+        fields = [smooth_field(scratch.Rows(status.shape, lambda band, c=c: fitted_rgb[band][..., c] / np.maximum(shading[band], np.float32(1e-12))),
+                               skin, sigma, out=scratch.like(shading)) for c in range(3)]
+        for index in _pixel_chunks(candidates, _CLASSIFY_CHUNK):  # bounded temporaries on a 4096^2 image
             local = np.stack([f[index] for f in fields], axis=-1)
             t = rgb[index]
             basis = np.stack([local, np.broadcast_to(gains, local.shape)], axis=-1)  # (n, 3, 2)
@@ -768,11 +829,17 @@ def _classify(rgb, gains, maps, field, model, dark=None):
             coef = np.linalg.solve(gram, np.einsum("nck,nc->nk", basis, t)[..., None])[..., 0]
             residual = np.linalg.norm(t - np.einsum("nck,nk->nc", basis, coef), axis=-1) / np.maximum(np.linalg.norm(t, axis=-1), 1e-12)
             white_share = coef[:, 1] * np.mean(gains) / np.maximum(np.mean(t, axis=-1), 1e-12)
-            glint = (coef[:, 0] > 0.8 * field[index]) & (white_share > 0.1) & (residual < _SPECULAR_FIT)
+            glint = (coef[:, 0] > 0.8 * field[index].astype(float)) & (white_share > 0.1) & (residual < _SPECULAR_FIT)
             status[tuple(i[glint] for i in index)] = PixelStatus.SPECULAR
-    not_skin = status >= PixelStatus.NOT_SKIN
-    for name in ("melanin", "haemoglobin", "shading", "melanin_se", "haemoglobin_se"):
-        maps[name][not_skin] = 0.0
+    for band in scratch.row_bands(*status.shape):
+        not_skin = status[band] >= PixelStatus.NOT_SKIN
+        for name in ("melanin", "haemoglobin", "shading", "melanin_se", "haemoglobin_se"):
+            maps[name][band][not_skin] = 0.0
+
+
+def _any(image) -> bool:
+    """Whether any pixel of a (h, w) bool image (or ``Rows`` expression) is set, a band at a time."""
+    return any(bool(np.any(image[rows])) for rows in scratch.row_bands(*image.shape[:2]))
 
 
 def _implausible(maps, field, dark, boxes) -> np.ndarray:
@@ -801,11 +868,11 @@ def _implausible(maps, field, dark, boxes) -> np.ndarray:
     return implausible | (np.abs(np.log(np.maximum(maps["shading"], 1e-12) / field)) > _OTHER_SURFACE)
 
 
-def _fit_in_bands(rgb, gains, mask, options, progress, band_pixels: int = 1 << 18):
+def _fit_in_bands(rgb, gains, mask, options, progress, band_pixels: int = 1 << 18, on_disk: bool = False):
     """``fit_pixels`` over bands of rows of at most ``band_pixels`` pixels, into preallocated
-    float32 maps (as the EXR stores them; ``fit_pixels`` returns float64): the working memory of a
-    4096 x 4096 image stays that of one band. The shading reference that picks the fold's branch
-    comes from the first band."""
+    float32 maps (as the EXR stores them; ``fit_pixels`` returns float64; out of core with
+    ``on_disk``): the working memory of a 4096 x 4096 image stays that of one band. The shading
+    reference that picks the fold's branch comes from the first band."""
     h, w, _ = rgb.shape
     rows = max(1, band_pixels // max(w, 1))
     maps = None
@@ -822,12 +889,14 @@ def _fit_in_bands(rgb, gains, mask, options, progress, band_pixels: int = 1 << 1
                           progress=False, **options)
         part["fitted_rgb"] = part["fitted_rgb"] * gains
         if maps is None:
-            maps = {k: np.zeros((h, w, *v.shape[2:]), np.float32 if v.dtype == np.float64 else v.dtype) for k, v in part.items()}
+            maps = {k: scratch.image_array((h, w, *v.shape[2:]), np.float32 if v.dtype == np.float64 else v.dtype, on_disk)
+                    for k, v in part.items()}
             if options.get("shading_reference") is None and len(range(0, h, rows)) > 1:
                 fitted = part["status"] == PixelStatus.SUCCESS
                 options = dict(options, shading_reference=float(np.median(part["shading"][fitted])) if fitted.any() else None)
         for k, v in part.items():
             maps[k][top : top + rows] = v
+        scratch.release_pages()
     return maps
 
 

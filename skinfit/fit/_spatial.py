@@ -6,14 +6,17 @@ from __future__ import annotations
 import numpy as np
 from scipy import ndimage
 
+from .. import _scratch as scratch
 
-def smooth_field(values: np.ndarray, weights: np.ndarray, sigma_px: float) -> np.ndarray:
+
+def smooth_field(values, weights, sigma_px: float, out: np.ndarray | None = None) -> np.ndarray:
     """Normalised Gaussian smoothing of ``values`` (h, w) where ``weights`` (h, w) > 0: the
     weighted mean within ~``sigma_px``, defined everywhere (pixels far from any weight get the
     weighted mean of the image). Computed on blocks of ~sigma/2 pixels and interpolated back
-    linearly, so a large sigma costs no more than a small one; float32 out, and no full-size
-    float64 temporaries (a 4096 x 4096 field stays within a few hundred MB)."""
-    h, w = values.shape
+    linearly, so a large sigma costs no more than a small one; float32 out (into ``out`` (h, w)
+    where given: an out-of-core array), and no full-size temporaries: ``values`` and ``weights``
+    are read a band of rows at a time (either may be a ``skinfit._scratch.Rows`` expression)."""
+    h, w = values.shape[:2]
     block = max(1, int(sigma_px // 2))
     hb, wb = -(-h // block), -(-w // block)
     num, den = np.zeros((hb, wb)), np.zeros((hb, wb))
@@ -29,21 +32,26 @@ def smooth_field(values: np.ndarray, weights: np.ndarray, sigma_px: float) -> np
         first = top // block
         num[first : first + rows] = padded_v.reshape(rows, block, wb, block).sum(axis=(1, 3))
         den[first : first + rows] = padded_w.reshape(rows, block, wb, block).sum(axis=(1, 3))
+        scratch.release_pages()
+    field = np.empty((h, w), np.float32) if out is None else out
     if not np.any(den > 0):
-        return np.zeros((h, w), np.float32)
+        field[:] = 0.0
+        return field
     fallback = float(num.sum() / den.sum())
     num = ndimage.gaussian_filter(num, sigma_px / block, mode="nearest")
     den = ndimage.gaussian_filter(den, sigma_px / block, mode="nearest")
     coarse = np.where(den > 1e-6 * den.max(), num / np.maximum(den, 1e-300), fallback)
     if block == 1:
-        return coarse[:h, :w].astype(np.float32)
+        field[:] = coarse[:h, :w]
+        return field
     # block centres sit at (i + 0.5) block - 0.5 in pixels: interpolate linearly between them,
     # first along the rows (to (h, wb)), then along the columns
     # (the second pass a band of rows at a time: whole, its float64 products take ~40 bytes a pixel)
     along_rows = _interpolate_axis0(coarse, (np.arange(h) + 0.5) / block - 0.5)
-    columns, field = (np.arange(w) + 0.5) / block - 0.5, np.empty((h, w), np.float32)
+    columns = (np.arange(w) + 0.5) / block - 0.5
     for top in range(0, h, band):
         field[top : top + band] = _interpolate_axis0(along_rows[top : top + band].T, columns).T
+        scratch.release_pages()
     return field
 
 

@@ -19,6 +19,7 @@ fills with grey; a PNG cut short) is refused with a one-line error rather than f
 
 from __future__ import annotations
 
+import contextlib
 import functools
 import os
 import tempfile
@@ -27,6 +28,7 @@ from pathlib import Path
 
 import numpy as np
 
+from .. import _scratch as scratch
 from .._validate import SkinfitInputError
 from ..colorimetry import srgb_decode
 from ._icc import UnsupportedProfile, parse_icc
@@ -49,58 +51,98 @@ def read_linear_rgb(path: str | os.PathLike, input_space: str | None = None, dty
 RAW_SUFFIXES = frozenset({".dng", ".cr2", ".cr3", ".nef", ".arw", ".raf", ".orf", ".rw2", ".pef", ".srw"})
 
 
-def read_image(path: str | os.PathLike, input_space: str | None = None, dtype=np.float64) -> tuple[np.ndarray, np.ndarray | None, str]:
+def read_image(path: str | os.PathLike, input_space: str | None = None, dtype=np.float64,
+               out_of_core: bool | None = None) -> tuple[np.ndarray, np.ndarray | None, str]:
     """``read_linear_rgb`` and a description of the encoding it decoded (``"sRGB"``, ``"linear"``,
-    ``"ICC profile 'Display P3'"``, ``"camera raw (LibRaw)"``, or the ``input_space`` given)."""
+    ``"ICC profile 'Display P3'"``, ``"camera raw (LibRaw)"``, or the ``input_space`` given).
+
+    Read and decoded a band of rows at a time, with no full-size copy beside the result; a large
+    image's result is mapped from disk (``out_of_core``: default from its size, see
+    ``skinfit._scratch``)."""
     path = Path(path)
     if path.suffix.lower() in RAW_SUFFIXES:
         return _read_raw(path).astype(dtype, copy=False), None, "camera raw (LibRaw, camera white balance, linear sRGB)"
-    spec, pixels = _read_pixels(path, np.float32)  # OIIO's float32, exactly as read
-    names = [name.upper() for name in spec.channelnames]
-    index = {}
-    for channel in ("R", "G", "B", "A"):
-        matches = [i for i, name in enumerate(names) if name == channel or name.endswith("." + channel)]
-        if matches:
-            index[channel] = matches[0]
-    if not all(c in index for c in "RGB"):
-        if spec.nchannels in (3, 4) and not any(name in ("R", "G", "B") for name in names):
-            index = {"R": 0, "G": 1, "B": 2, **({"A": 3} if spec.nchannels == 4 else {})}  # unnamed channels
-        else:
-            raise SkinfitInputError(
-                f"{path} has channels {', '.join(spec.channelnames)}; an R, G and B channel are needed"
-            )
-    channels = [index["R"], index["G"], index["B"]]
-    alpha = np.asarray(pixels[..., index["A"]], np.float64) if "A" in index else None
+    oiio = _oiio()
+    with _opened(path) as image:
+        spec = image.spec()
+        names = [name.upper() for name in spec.channelnames]
+        index = {}
+        for channel in ("R", "G", "B", "A"):
+            matches = [i for i, name in enumerate(names) if name == channel or name.endswith("." + channel)]
+            if matches:
+                index[channel] = matches[0]
+        if not all(c in index for c in "RGB"):
+            if spec.nchannels in (3, 4) and not any(name in ("R", "G", "B") for name in names):
+                index = {"R": 0, "G": 1, "B": 2, **({"A": 3} if spec.nchannels == 4 else {})}  # unnamed channels
+            else:
+                raise SkinfitInputError(
+                    f"{path} has channels {', '.join(spec.channelnames)}; an R, G and B channel are needed"
+                )
+        decode, encoding = _decoder(path, spec, input_space)
+        h, w = spec.height, spec.width
+        if h * w == 0:
+            raise SkinfitInputError(f"{path} is empty")
+        on_disk = scratch.out_of_core(h * w, out_of_core)
+        rgb = scratch.image_array((h, w, 3), dtype, on_disk)
+        alpha = np.empty((h, w), np.float64) if "A" in index else None
+        channels = [index["R"], index["G"], index["B"]]
+        rows = max(1, _DECODE_CHUNK // w)
+        for top in range(0, h, rows):
+            bottom = min(top + rows, h)
+            band = image.read_scanlines(0, 0, top, bottom, 0, 0, spec.nchannels, oiio.FLOAT)
+            if band is None or _damaged(image):
+                raise SkinfitInputError(f"cannot read image {path}: {_first_line(image.geterror()) or 'no pixels'} (truncated or corrupt file)")
+            band = np.asarray(band, np.float32).reshape(bottom - top, w, spec.nchannels)  # OIIO's float32, exactly as read
+            rgb[top:bottom] = _decoded(band, channels, decode, dtype, pad=h * w > _DECODE_CHUNK)
+            if alpha is not None:
+                alpha[top:bottom] = band[..., index["A"]]
+            scratch.release_pages()
+    orientation = spec.get_int_attribute("Orientation", 1)
+    if orientation in _ORIENTATIONS and orientation != 1:
+        rgb = _oriented_copy(rgb, orientation)
+        alpha = None if alpha is None else orient(alpha, orientation)
+    return rgb, alpha, encoding
 
+
+def _decoder(path: Path, spec, input_space: str | None):
+    """(decode: float64 (n, 3) -> linear sRGB, description) for the file's encoding."""
     if input_space is None and spec.getattribute("ICCProfile") is not None and spec.format.basetype not in _float_types():
         try:
             profile = parse_icc(bytes(np.asarray(spec.getattribute("ICCProfile"), dtype=np.uint8)))
         except UnsupportedProfile as error:
-            warnings.warn(f"{path.name}: {error}; its pixels are taken as sRGB (give input_space to say otherwise)", stacklevel=2)
+            warnings.warn(f"{path.name}: {error}; its pixels are taken as sRGB (give input_space to say otherwise)", stacklevel=3)
         else:
-            return _decoded(pixels, channels, profile.to_linear_srgb, dtype), alpha, f"ICC profile {profile.description!r}"
+            return profile.to_linear_srgb, f"ICC profile {profile.description!r}"
     space = input_space or _default_space(spec)
-    return _decoded(pixels, channels, functools.partial(to_linear_srgb, space=space), dtype), alpha, space
+    return functools.partial(to_linear_srgb, space=space), space
 
 
 #: Pixels per chunk of ``_decoded`` (padded: one shape of each decoding program for every image).
 _DECODE_CHUNK = 1 << 18
 
 
-def _decoded(pixels: np.ndarray, channels: list[int], decode, dtype) -> np.ndarray:
-    """``decode`` (float64 (n, 3) -> linear sRGB) of the ``channels`` of ``pixels`` (h, w, c), a chunk
-    of pixels at a time, into a ``dtype`` array (h, w, 3): the values of decoding the whole image in
-    float64 (the transfer functions work per pixel), without its float64 copies (a 48 MP photo's
-    would take 3.5 GB)."""
+def _decoded(pixels: np.ndarray, channels: list[int], decode, dtype, pad: bool) -> np.ndarray:
+    """``decode`` (float64 (n, 3) -> linear sRGB) of the ``channels`` of ``pixels`` (h, w, c), at
+    most ``_DECODE_CHUNK`` pixels, into a ``dtype`` array (h, w, 3); ``pad``: to ``_DECODE_CHUNK``
+    pixels (the values of decoding the whole image in float64: the transfer functions work per
+    pixel, and one padded shape keeps one program per decoder)."""
     h, w, count = pixels.shape
-    flat, out = pixels.reshape(-1, count), np.empty((h * w, 3), dtype)
-    for start in range(0, h * w, _DECODE_CHUNK):
-        part = np.asarray(flat[start : start + _DECODE_CHUNK][:, channels], np.float64)
-        n = len(part)
-        if n < _DECODE_CHUNK and h * w > _DECODE_CHUNK:
-            part = np.concatenate([part, np.repeat(part[-1:], _DECODE_CHUNK - n, axis=0)])
-        out[start : start + n] = np.asarray(decode(part))[:n]
-    return out.reshape(h, w, 3)
+    part = np.asarray(pixels.reshape(-1, count)[:, channels], np.float64)
+    n = len(part)
+    if pad and n < _DECODE_CHUNK:
+        part = np.concatenate([part, np.repeat(part[-1:], _DECODE_CHUNK - n, axis=0)])
+    return np.asarray(np.asarray(decode(part))[:n], dtype).reshape(h, w, 3)
+
+
+def _oriented_copy(stored: np.ndarray, orientation: int) -> np.ndarray:
+    """``orient``ed copy of ``stored`` (h, w, 3), out of core where it is, a band of rows at a time."""
+    view = _ORIENTATIONS[orientation](stored)
+    out = scratch.like(stored, shape=view.shape)
+    rows = max(1, _DECODE_CHUNK // max(view.shape[1], 1))
+    for top in range(0, view.shape[0], rows):
+        out[top : top + rows] = view[top : top + rows]
+        scratch.release_pages()
+    return out
 
 
 def _read_raw(path: Path) -> np.ndarray:
@@ -196,24 +238,36 @@ def _read_pixels(path: Path, dtype=np.float64):
     """(spec, pixels (h, w, channels) float64 or ``dtype``, as displayed: EXIF orientation applied) of the
     first subimage; unreadable, truncated or corrupt files raise ``SkinfitInputError``."""
     oiio = _oiio()
+    with _opened(path) as image:
+        spec = image.spec()
+        pixels = image.read_image(0, 0, 0, spec.nchannels, oiio.FLOAT)
+        if pixels is None or _damaged(image):
+            raise SkinfitInputError(f"cannot read image {path}: {_first_line(image.geterror()) or 'no pixels'} (truncated or corrupt file)")
+    pixels = np.asarray(pixels, dtype=dtype).reshape(spec.height, spec.width, spec.nchannels)
+    if pixels.size == 0:
+        raise SkinfitInputError(f"{path} is empty")
+    return spec, orient(pixels, spec.get_int_attribute("Orientation", 1))
+
+
+@contextlib.contextmanager
+def _opened(path: Path):
+    """The file's OIIO ``ImageInput``, closed on leaving; a missing or unreadable file raises
+    ``SkinfitInputError``."""
+    oiio = _oiio()
     if not path.is_file():
         raise SkinfitInputError(f"cannot read image {path}: no such file")
     image = oiio.ImageInput.open(str(path))
     if image is None:
         raise SkinfitInputError(f"cannot read image {path}: {_first_line(oiio.geterror()) or 'unknown format'}")
     try:
-        spec = image.spec()
-        pixels = image.read_image(0, 0, 0, spec.nchannels, oiio.FLOAT)
-        # a decoder that met damage says so (libjpeg fills a truncated JPEG with grey and goes on)
-        damaged = image.has_error() if callable(image.has_error) else image.has_error
-        if pixels is None or damaged:
-            raise SkinfitInputError(f"cannot read image {path}: {_first_line(image.geterror()) or 'no pixels'} (truncated or corrupt file)")
+        yield image
     finally:
         image.close()
-    pixels = np.asarray(pixels, dtype=dtype).reshape(spec.height, spec.width, spec.nchannels)
-    if pixels.size == 0:
-        raise SkinfitInputError(f"{path} is empty")
-    return spec, orient(pixels, spec.get_int_attribute("Orientation", 1))
+
+
+def _damaged(image) -> bool:
+    """Whether the decoder met damage (libjpeg fills a truncated JPEG with grey and goes on)."""
+    return bool(image.has_error() if callable(image.has_error) else image.has_error)
 
 
 def _first_line(message: str) -> str:
@@ -224,12 +278,18 @@ def orient(pixels: np.ndarray, orientation: int) -> np.ndarray:
     """Stored pixels (h, w, ...) as displayed under EXIF orientation 1-8 (TIFF/EXIF tag 274: 2
     mirrored, 3 rotated 180, 4 flipped, 5 transposed, 6 rotated 90 clockwise, 7 transversed, 8
     rotated 90 anticlockwise); other values leave them as they are."""
-    transpose = lambda a: np.swapaxes(a, 0, 1)  # noqa: E731
-    ops = {
-        2: lambda a: a[:, ::-1], 3: lambda a: a[::-1, ::-1], 4: lambda a: a[::-1],
-        5: transpose, 6: lambda a: transpose(a)[:, ::-1], 7: lambda a: transpose(a)[::-1, ::-1], 8: lambda a: transpose(a)[::-1],
-    }
-    return np.ascontiguousarray(ops[orientation](pixels)) if orientation in ops else pixels
+    return np.ascontiguousarray(_ORIENTATIONS[orientation](pixels)) if orientation in _ORIENTATIONS else pixels
+
+
+def _transpose(a: np.ndarray) -> np.ndarray:
+    return np.swapaxes(a, 0, 1)
+
+
+#: The displayed view of stored pixels for each EXIF orientation (see ``orient``).
+_ORIENTATIONS = {
+    1: lambda a: a, 2: lambda a: a[:, ::-1], 3: lambda a: a[::-1, ::-1], 4: lambda a: a[::-1],
+    5: _transpose, 6: lambda a: _transpose(a)[:, ::-1], 7: lambda a: _transpose(a)[::-1, ::-1], 8: lambda a: _transpose(a)[::-1],
+}
 
 
 def write_png(path: str | os.PathLike, encoded_rgb: np.ndarray, bits: int = 8) -> None:
@@ -266,6 +326,7 @@ def _write(path, spec, band, height: int) -> None:
         for top in range(0, height, _WRITE_ROWS):
             bottom = min(top + _WRITE_ROWS, height)
             ok = ok and out.write_scanlines(top, bottom, 0, np.ascontiguousarray(band(top, bottom)))
+            scratch.release_pages()  # the rows of out-of-core maps just written
         out.close()
         if not ok:
             raise OSError(f"cannot write {path}: {out.geterror()}")

@@ -5,13 +5,26 @@ from __future__ import annotations
 
 import numpy as np
 
+from .. import _scratch as scratch
+
 
 def box_downscale(image: np.ndarray, factor: int) -> np.ndarray:
     """Mean over factor x factor blocks (an anti-aliasing prefilter before bilinear sampling)."""
     if factor <= 1:
         return image
     h, w = image.shape[0] // factor * factor, image.shape[1] // factor * factor
-    return image[:h, :w].reshape(h // factor, factor, w // factor, factor, -1).mean(axis=(1, 3))
+    if h == 0 or w == 0:
+        return image[:h, :w].reshape(h // factor, factor, w // factor, factor, -1).mean(axis=(1, 3))
+    out = None
+    rows = factor * max(1, (1 << 20) // max(w * factor, 1))  # whole blocks, ~1 MP a band
+    for top in range(0, h, rows):  # a band at a time: an out-of-core photo's pages given back after each
+        bottom = min(top + rows, h)
+        part = image[top:bottom, :w].reshape((bottom - top) // factor, factor, w // factor, factor, -1).mean(axis=(1, 3))
+        if out is None:
+            out = np.empty((h // factor, *part.shape[1:]), part.dtype)
+        out[top // factor : bottom // factor] = part
+        scratch.release_pages()
+    return out
 
 
 def warp(image: np.ndarray, centre_x: float, centre_y: float, side: float, angle: float, out: int) -> np.ndarray:
