@@ -21,6 +21,14 @@ def bucket_size(n: int, chunk_size: int, smallest: int = 256, factor: int = 8) -
     return min(size, chunk_size)
 
 
+def padded_rows(rows: np.ndarray, size: int) -> np.ndarray:
+    """``rows`` (n, ...) padded to ``size`` rows by repeating the last (one program shape for
+    every count up to ``size``); as they are when n >= size."""
+    if len(rows) >= size:
+        return rows
+    return np.concatenate([rows, np.repeat(rows[-1:], size - len(rows), axis=0)])
+
+
 def chunks(items: np.ndarray, size: int, progress, desc: str):
     """(start, stop, padded chunk) over ``items`` in fixed-size chunks; the last is padded by repetition."""
     n = len(items)
@@ -33,10 +41,7 @@ def chunks(items: np.ndarray, size: int, progress, desc: str):
         starts = tqdm(starts, desc=desc, unit="chunk")
     for start in starts:
         stop = min(start + size, n)
-        chunk = items[start:stop]
-        if len(chunk) < size:
-            chunk = np.concatenate([chunk, np.repeat(chunk[-1:], size - len(chunk), axis=0)])
-        yield start, stop, chunk
+        yield start, stop, padded_rows(items[start:stop], size)
 
 
 def map_batches(function, arrays, size: int, progress=False, desc: str = "") -> list[np.ndarray]:

@@ -18,7 +18,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from .. import _scratch as scratch
-from .._batching import bucket_size
+from .._batching import bucket_size, padded_rows
 from .._validate import SkinfitInputError
 from ..colorimetry import (
     DEFAULT_ILLUMINANT,
@@ -593,8 +593,8 @@ def _segment(rgb: np.ndarray) -> FaceSegmentation | None:
         encoded = scratch.like(rgb, np.float32)
         for rows in scratch.row_bands(h, w, size):
             part = rgb[rows].reshape(-1, 3)
-            padded = np.concatenate([part, np.repeat(part[-1:], size - len(part), axis=0)]) if len(part) < size else part
-            encoded[rows] = np.asarray(srgb_encode(jnp.clip(jnp.asarray(padded).astype(jnp.float32), 0.0, 1.0)))[: len(part)].reshape(-1, w, 3)
+            linear = jnp.asarray(padded_rows(part, size)).astype(jnp.float32)
+            encoded[rows] = np.asarray(srgb_encode(jnp.clip(linear, 0.0, 1.0)))[: len(part)].reshape(-1, w, 3)
         return segment_faces(encoded)
     except SegmentationUnavailable as error:
         warnings.warn(f"{error}: fitting every pixel, the skin model's gamut deciding what is skin", stacklevel=3)
@@ -615,8 +615,9 @@ def population_blend(model: SkinModel) -> float:
 _FAR_FROM_FIELD = np.log(1.1)
 
 
-def _fitted(maps) -> np.ndarray:
-    return (maps["status"] == PixelStatus.SUCCESS) | (maps["status"] == PixelStatus.MAX_STEPS)
+def _fitted(status) -> np.ndarray:
+    """Pixels (of the ``status`` codes given) whose maps hold a fit: SUCCESS or MAX_STEPS."""
+    return (status == PixelStatus.SUCCESS) | (status == PixelStatus.MAX_STEPS)
 
 
 def _field_sigma(shape) -> float:
@@ -631,7 +632,7 @@ def _shading_field(maps, sigma: float | None = None) -> np.ndarray:
 
     shading = maps["shading"]
     log_k = scratch.Rows(shading.shape, lambda rows: np.log(np.maximum(shading[rows], np.float32(1e-12))))  # float32, as the maps
-    fitted = scratch.Rows(shading.shape, lambda rows: _fitted({"status": maps["status"][rows]}))
+    fitted = scratch.Rows(shading.shape, lambda rows: _fitted(maps["status"][rows]))
     sigma = _field_sigma(shading.shape) if sigma is None else sigma
     field = smooth_field(log_k, fitted, sigma, out=scratch.like(shading))
     near = scratch.Rows(shading.shape, lambda rows: fitted[rows] & (np.abs(log_k[rows] - field[rows]) <= _FAR_FROM_FIELD))
@@ -702,7 +703,7 @@ def _coherent_branches(rgb, gains, maps, options) -> np.ndarray:
             field[rows] = np.exp(field[rows])
             # out-of-model pixels (hair, background) have no branch worth choosing, and are the slowest to refit;
             # a face's own shading strays 1.1x from a coarse field at most pixels, but few have a colour there
-            here = _fitted({"status": maps["status"][rows]})
+            here = _fitted(maps["status"][rows])
             here &= np.abs(np.log(np.maximum(maps["shading"][rows], np.float32(1e-12)) / field[rows])) > _FAR_FROM_FIELD
             here[here] = _has_colour_at(table, rgb[rows][here] / gains / field[rows][here][:, None])
             far[rows] = here
@@ -715,7 +716,7 @@ def _regularise(rgb, gains, maps, field, options, sd, size):
     """Refit every fitted pixel under a prior centred on its neighbourhood's median ln C (an
     edge-preserving centre), combined with the population prior (precisions add)."""
 
-    fitted = _fitted(maps)
+    fitted = _fitted(maps["status"])
     if not fitted.any():
         return
     model = options["model"]

@@ -29,6 +29,7 @@ from pathlib import Path
 import numpy as np
 
 from .. import _scratch as scratch
+from .._batching import padded_rows
 from .._validate import SkinfitInputError
 from ..colorimetry import srgb_decode
 from ._icc import UnsupportedProfile, parse_icc
@@ -129,8 +130,8 @@ def _decoded(pixels: np.ndarray, channels: list[int], decode, dtype, pad: bool) 
     h, w, count = pixels.shape
     part = np.asarray(pixels.reshape(-1, count)[:, channels], np.float64)
     n = len(part)
-    if pad and n < _DECODE_CHUNK:
-        part = np.concatenate([part, np.repeat(part[-1:], _DECODE_CHUNK - n, axis=0)])
+    if pad:
+        part = padded_rows(part, _DECODE_CHUNK)
     return np.asarray(np.asarray(decode(part))[:n], dtype).reshape(h, w, 3)
 
 
