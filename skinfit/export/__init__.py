@@ -2,6 +2,7 @@
 transport (``RendererMedium``), and the renderer formats (pbrt-v4, Mitsuba 3, Blender Cycles, textures).
 """
 
+from ._layered import LAYERED_WAVELENGTHS_NM, LayeredMedium, layered_medium
 from ._media import (
     DEFAULT_CONVENTIONS,
     MEDIAN_PHOTONS,
@@ -30,6 +31,14 @@ from ._mitsuba import (
     render_spectral_albedo,
     write_mitsuba_volume,
 )
+from ._mitsuba_layered import (
+    mitsuba_layered_media,
+    mitsuba_layered_shapes,
+    mitsuba_layered_surface,
+    mitsuba_layered_xml,
+    render_layered_albedo,
+    render_layered_energy_within,
+)
 from ._profile_tables import ProfileTable, profile_table, read_exr_table, write_table
 from ._renderers import (
     CHANNELS,
@@ -52,6 +61,15 @@ from ._renderers import (
 )
 
 __all__ = [
+    "render_layered_energy_within",
+    "render_layered_albedo",
+    "mitsuba_layered_xml",
+    "mitsuba_layered_surface",
+    "mitsuba_layered_shapes",
+    "mitsuba_layered_media",
+    "layered_medium",
+    "LayeredMedium",
+    "LAYERED_WAVELENGTHS_NM",
     "_energy_measure",
     "_file_name",
     "blender_base_colour",

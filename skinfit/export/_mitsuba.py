@@ -89,18 +89,25 @@ def mitsuba_spectral_medium(wavelengths_nm, medium: RendererMedium, *, mm_per_sc
         raise SkinfitInputError("a spectral Mitsuba medium needs one medium per wavelength, wavelengths increasing")
     albedo = np.asarray(medium.single_scattering_albedo, dtype=float)
     sigma_t = np.asarray(medium.extinction_per_mm, dtype=float) * mm_per_scene_unit
-    low, high = MITSUBA_SPECTRAL_RANGE_NM
-    if lam[0] > low:
-        lam, albedo, sigma_t = np.r_[low, lam], np.r_[albedo[0], albedo], np.r_[sigma_t[0], sigma_t]
-    if lam[-1] < high:
-        lam, albedo, sigma_t = np.r_[lam, high], np.r_[albedo, albedo[-1]], np.r_[sigma_t, sigma_t[-1]]
     return {
         "type": "homogeneous",
-        "albedo": {"type": "spectrum", "value": [(float(w), float(v)) for w, v in zip(lam, albedo)]},
-        "sigma_t": {"type": "spectrum", "value": [(float(w), float(v)) for w, v in zip(lam, sigma_t)]},
+        "albedo": spectrum_value(lam, albedo),
+        "sigma_t": spectrum_value(lam, sigma_t),
         "scale": 1.0,
         "phase": _phase(medium.conventions.anisotropy),
     }
+
+
+def spectrum_value(wavelengths_nm, values) -> dict:
+    """An irregular ``spectrum`` for Mitsuba, held constant from its ends to 360-830 nm (Mitsuba
+    reads it as zero outside its wavelengths)."""
+    lam, values = np.asarray(wavelengths_nm, dtype=float), np.asarray(values, dtype=float)
+    low, high = MITSUBA_SPECTRAL_RANGE_NM
+    if lam[0] > low:
+        lam, values = np.r_[low, lam], np.r_[values[0], values]
+    if lam[-1] < high:
+        lam, values = np.r_[lam, high], np.r_[values, values[-1]]
+    return {"type": "spectrum", "value": [(float(w), float(v)) for w, v in zip(lam, values)]}
 
 
 def mitsuba_material(medium: dict, ior: float) -> dict:
@@ -201,7 +208,7 @@ def _mitsuba(variant: str):
     return mi
 
 
-def _slab_scene(mi, material: dict, film: dict, *, spp: int, seed: int, view_mm: float, extra: dict | None = None,
+def _slab_scene(mi, material: dict | None, film: dict, *, spp: int, seed: int, view_mm: float, extra: dict | None = None,
                 rr_depth: int = 200, integrator: str = "volpathmis", sampler: str = "multijitter",
                 width_mm: float = SLAB_WIDTH_MM, depth_mm: float = SLAB_DEPTH_MM) -> dict:
     transform = mi.ScalarTransform4f
@@ -215,9 +222,10 @@ def _slab_scene(mi, material: dict, film: dict, *, spp: int, seed: int, view_mm:
                    "to_world": transform().look_at(origin=[0, 0, 10], target=[0, 0, 0], up=[0, 1, 0]) @ transform().scale([view_mm, view_mm, 1]),
                    "film": film, "sampler": {"type": sampler, "sample_count": int(spp), "seed": int(seed)}},
         "environment": {"type": "constant", "radiance": 1.0},
-        "slab": {"type": "cube", "to_world": transform().translate([0, 0, -half_depth]) @ transform().scale([half_width, half_width, half_depth]),
-                 **material},
     }
+    if material is not None:  # else the slab's shapes come in ``extra``
+        scene["slab"] = {"type": "cube", "to_world": transform().translate([0, 0, -half_depth]) @ transform().scale([half_width, half_width, half_depth]),
+                         **material}
     return {**scene, **(extra or {})}
 
 
@@ -245,15 +253,27 @@ def render_spectral_albedo(material: dict, wavelengths_nm, *, band_nm: float = 2
     (the film's band responses are not normalised to one another)."""
     mi = _mitsuba(variant)
     lam = np.asarray(wavelengths_nm, dtype=float)
+    scene = _slab_scene(mi, material, spectral_film(lam, band_nm, resolution), spp=spp, seed=seed, view_mm=1.0)
+    pixels = render_spectral_bands(mi, scene, lam.size, spp, seed) - _specular(material)
+    return pixels.mean(axis=0), pixels.std(axis=0, ddof=1) / np.sqrt(len(pixels))
+
+
+def spectral_film(wavelengths_nm, band_nm: float, resolution: int) -> dict:
+    """Mitsuba's spectral film with a box band ``band_nm`` wide around each wavelength (at most ~16)."""
     half = band_nm / 2
-    bands = {f"band{k:02d}": {"type": "spectrum", "value": [(float(w - half), 1.0), (float(w + half), 1.0)]} for k, w in enumerate(lam)}
-    film = {"type": "specfilm", "width": resolution, "height": resolution, "rfilter": {"type": "box"}, **bands}
-    scene = _slab_scene(mi, material, film, spp=spp, seed=seed, view_mm=1.0)
+    bands = {f"band{k:02d}": {"type": "spectrum", "value": [(float(w - half), 1.0), (float(w + half), 1.0)]}
+             for k, w in enumerate(np.asarray(wavelengths_nm, dtype=float))}
+    return {"type": "specfilm", "width": resolution, "height": resolution, "rfilter": {"type": "box"}, **bands}
+
+
+def render_spectral_bands(mi, scene: dict, bands: int, spp: int, seed: int) -> np.ndarray:
+    """(pixels, bands): ``scene`` (a dictionary with a ``spectral_film``) rendered, each band
+    normalised by a render of the white environment alone through the same film (the film's band
+    responses are not normalised to one another)."""
     white = {key: scene[key] for key in ("type", "integrator", "sensor", "environment")}
     white["sensor"] = {**scene["sensor"], "sampler": {"type": "independent", "sample_count": 4 * int(spp), "seed": int(seed) + 1}}
-    unit = np.asarray(mi.render(mi.load_dict(white)), dtype=float).reshape(-1, lam.size).mean(axis=0)
-    pixels = np.asarray(mi.render(mi.load_dict(scene)), dtype=float).reshape(-1, lam.size) / unit - _specular(material)
-    return pixels.mean(axis=0), pixels.std(axis=0, ddof=1) / np.sqrt(len(pixels))
+    unit = np.asarray(mi.render(mi.load_dict(white)), dtype=float).reshape(-1, bands).mean(axis=0)
+    return np.asarray(mi.render(mi.load_dict(scene)), dtype=float).reshape(-1, bands) / unit
 
 
 def _annulus(mi, inner_mm: float, outer_mm: float, height_mm: float, segments: int = 512):

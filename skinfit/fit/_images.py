@@ -254,7 +254,13 @@ def fit_image(
             # float32: a file holds no more (float, half or integer); decoded in float64 a chunk at a time
             rgb, alpha, encoding = read_image(image, input_space, np.float32, out_of_core=out_of_core)
     else:
-        rgb = np.asarray(image, dtype=float)
+        if isinstance(image, tuple) and len(image) == 3 and isinstance(image[2], str):
+            raise SkinfitInputError("fit_image takes a path or an (h, w, 3) array, got read_image's "
+                                    "(rgb, alpha, encoding) tuple: pass its rgb, or the path itself")
+        try:
+            rgb = np.asarray(image, dtype=float)
+        except (TypeError, ValueError) as error:
+            raise SkinfitInputError(f"fit_image takes a path or an (h, w, 3) array of numbers: {error}") from None
         if rgb.ndim != 3 or rgb.shape[-1] != 3:
             raise SkinfitInputError(f"expected an image of shape (h, w, 3), got {rgb.shape}")
     on_disk = scratch.out_of_core(rgb.shape[0] * rgb.shape[1], out_of_core)
