@@ -33,6 +33,8 @@ DEPENDS_ON = {
     "fit_photos.json": ("benchmarks/fit_photos.py", ["skinfit/fit", "skinfit/colorimetry", "skinfit/io"]),
     "fit_spectra.json": ("benchmarks/fit_spectra.py", ["skinfit/model", "skinfit/fit"]),
     "forward_model.json": ("benchmarks/forward_model.py", ["skinfit/model", "skinfit/export/_profile_tables.py"]),
+    "layered_renders.json": ("benchmarks/layered_renders.py", ["skinfit/model", "skinfit/export/_layered.py", "skinfit/export/_mitsuba_layered.py",
+                                                               "skinfit/export/_mitsuba.py"]),
     "medium_table.json": ("benchmarks/build_medium_table.py", ["skinfit/model", "skinfit/export/_media.py"]),
     "profile_fits.json": ("benchmarks/profile_fits.py", ["skinfit/model", "skinfit/export", "skinfit/colorimetry", "spectra"]),
     "renderers.json": ("benchmarks/renderers.py", ["skinfit/model", "skinfit/export"]),

@@ -11,6 +11,8 @@ import numpy as np
 from .._validate import SkinfitInputError
 from ..colorimetry import render_maps, spectrum_to_srgb, srgb_encode
 from ..export import (
+    layered_medium,
+    mitsuba_layered_xml,
     profile_table,
     renderer_profiles,
     renderer_textures,
@@ -29,7 +31,7 @@ from ..io import (
     write_exr,
     write_png,
 )
-from ..model import PRESET_NAMES, SkinModel, diffuse_reflectance, preset
+from ..model import PRESET_NAMES, SkinModel, diffuse_reflectance, model_with_options, preset
 from ..planning import Request, plan
 from ._arguments import (
     DEFAULT_RADII,
@@ -62,6 +64,8 @@ def cmd_spectrum(args) -> int:
 
 
 def cmd_profiles(args) -> int:
+    if args.format in ("mitsuba-layered", "mitsuba-layered-spectral"):
+        return _write_layered(args)
     if args.format != "table":
         wavelengths = args.wavelengths
         if args.format == "mitsuba-spectral" and wavelengths == PROFILE_WAVELENGTHS:
@@ -85,6 +89,26 @@ def cmd_profiles(args) -> int:
     )
     path = write_table(table, args.out)
     print(f"wrote {path}: {table.spectral.shape[0]} wavelengths x {table.spectral.shape[1]} radii (mm^-2) + linear sRGB profiles")
+    return 0
+
+
+def _write_layered(args) -> int:
+    """The model's two layers as Mitsuba 3 media (``skinfit.export.layered_medium``)."""
+    spectral = args.format == "mitsuba-layered-spectral"
+    wavelengths = MITSUBA_WAVELENGTHS if args.wavelengths == PROFILE_WAVELENGTHS else args.wavelengths
+    options = model_options_from(args)
+    model = model_with_options(options.pop("model", None), **options)
+    layered = layered_medium(params_from(args), parse_wavelengths(wavelengths), spectral=spectral, illuminant=args.illuminant,
+                             model=model, label=args.preset or "")
+    p = layered.metadata["parameters"]
+    head = (f"{layered.metadata['generator']}, model {layered.metadata['model']}: C_m {p['melanin']:g}, "
+            f"beta_m {p['melanin_blend']:g}, C_h {p['haemoglobin']:g}, oil {p['oil']:g}")
+    path = Path(args.out)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    path.write_text(mitsuba_layered_xml(layered, comment=head), encoding="utf-8")
+    per = f"{len(layered.channels)} wavelengths" if spectral else "RGB channels"
+    print(f"wrote {path} (Mitsuba 3 epidermis {layered.epidermis_thickness_mm:g} mm over dermis, {per}, "
+          f"Henyey-Greenstein g {layered.anisotropy:g})")
     return 0
 
 

@@ -36,11 +36,14 @@ def build_parser() -> argparse.ArgumentParser:
     profiles.add_argument("--illuminant", default="D65", help="illuminant of the RGB profiles (default D65)")
     profiles.add_argument("--out", required=True, help="output file (table: .csv, .npz or .exr)")
     profiles.add_argument("--format", default="table",
-                          choices=("table", "renderer-table", "gaussians", "burley", "pbrt", "mitsuba", "mitsuba-spectral", "blender", "json"),
+                          choices=("table", "renderer-table", "gaussians", "burley", "pbrt", "mitsuba", "mitsuba-spectral", "mitsuba-layered",
+                                   "mitsuba-layered-spectral", "blender", "json"),
                           help="table: --radii as given (default); renderer-table: radii to 99.7 %% of the energy, normalised; "
                                "gaussians / burley: fits per RGB channel (JSON); pbrt: pbrt-v4 subsurface material; "
                                "mitsuba / mitsuba-spectral: Mitsuba 3 dielectric + homogeneous medium (XML; spectral: per "
-                               f"wavelength, {MITSUBA_WAVELENGTHS} nm unless --wavelengths); blender: Principled BSDF values "
+                               f"wavelength, {MITSUBA_WAVELENGTHS} nm unless --wavelengths); mitsuba-layered / mitsuba-layered-spectral: the model's "
+                               "epidermis slab over dermis as nested Mitsuba 3 media (Henyey-Greenstein g 0.8; the profile's shape, "
+                               "not only its colour); blender: Principled BSDF values "
                                "compensated for Cycles (JSON); json: all fits and the media. Media are matched with exact "
                                "transport (index 1.4, isotropic, mm)")
     profiles.set_defaults(run=cmd_profiles)

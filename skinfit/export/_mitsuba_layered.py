@@ -112,7 +112,7 @@ def mitsuba_layered_xml(layered: LayeredMedium, *, mm_per_scene_unit: float = 1.
              "use: the skin mesh with <ref id=\"skin_surface\"/> <ref name=\"interior\" id=\"epidermis\"/>; a copy offset inwards by "
              f"{layered.epidermis_thickness_mm / mm_per_scene_unit:g} scene units with <ref id=\"skin_interface\"/> "
              "<ref name=\"interior\" id=\"dermis\"/> <ref name=\"exterior\" id=\"epidermis\"/>; the volpathmis integrator "
-             "(spectral MIS: the channels' sigma_t differ), max_depth -1, rr_depth 200 or more (g 0.8 takes many bounces)"]
+             "(spectral MIS: the channels' sigma_t differ), max_depth -1, rr_depth 5000 or more (g 0.8 takes thousands of bounces; from depth 200 the red renders 8 % dark)"]
     lines = [f"<!-- {line.replace('--', '- -')} -->" for line in notes if line.strip()]
     surface = mitsuba_layered_surface(layered)
     dielectric = lambda b, bid="": (f'<bsdf type="{b["type"]}"{bid}>' + (  # noqa: E731

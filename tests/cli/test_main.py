@@ -209,3 +209,18 @@ def test_the_printed_blend_lists_a_few_faces_and_summarises_many():
     assert blend_text(faces(2)) == "0.1 (+-0.05), 0.2 (+-0.05)"
     text = blend_text(faces(331))
     assert text.startswith("median ") and "over 331 faces" in text and len(text) < 100
+
+
+def test_profiles_writes_the_layered_mitsuba_media_rgb_and_spectral(tmp_path, capsys):
+    import xml.etree.ElementTree as ElementTree
+
+    for fmt, per in (("mitsuba-layered", "RGB channels"), ("mitsuba-layered-spectral", "48 wavelengths")):
+        out = tmp_path / f"{fmt}.xml"
+        assert main(["profiles", "--preset", "medium", "--format", fmt, "--out", str(out)]) == 0
+        assert per in capsys.readouterr().out
+        root = ElementTree.fromstring(f"<scene>{out.read_text()}</scene>")
+        albedo = root.find("medium[@id='epidermis']/*[@name='albedo']")
+        assert albedo.tag == ("rgb" if fmt == "mitsuba-layered" else "spectrum")
+        if fmt == "mitsuba-layered-spectral":  # 360-830 nm, what Mitsuba samples
+            nodes = [float(pair.split(":")[0]) for pair in albedo.get("value").split(", ")]
+            assert nodes[0] == 360.0 and nodes[-1] == 830.0
