@@ -41,6 +41,8 @@ from .._version import __version__
 from ..colorimetry import DEFAULT_ILLUMINANT, linear_srgb_weights
 from ..model import (
     SKIN_ANISOTROPY,
+    SURFACE_IOR,
+    SURFACE_ROUGHNESS,
     Layer,
     SkinParams,
     diffuse_reflectance,
@@ -49,7 +51,6 @@ from ..model import (
     normal_fresnel_reflectance,
     stack_reflectance_transport,
 )
-from ..model._surface import SURFACE_IOR, SURFACE_ROUGHNESS
 
 #: Streams of the adding-doubling that matches an RGB channel's stack to its albedo.
 LAYERED_STREAMS = 32

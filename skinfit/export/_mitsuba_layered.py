@@ -26,7 +26,7 @@ from xml.sax.saxutils import quoteattr
 import numpy as np
 
 from .._validate import SkinfitInputError
-from ..model._surface import SURFACE_IOR, SURFACE_ROUGHNESS
+from ..model import SURFACE_IOR, SURFACE_ROUGHNESS
 from ._layered import LayeredMedium
 from ._mitsuba import (
     _annulus,

@@ -59,6 +59,7 @@ from ._skin_model import (
     skin_layers,
 )
 from ._surface import (
+    SURFACE_IOR,
     SURFACE_ROUGHNESS,
     _unit_lobe,
     brdf,
@@ -153,6 +154,7 @@ __all__ = [
     "stack_reflectance_transport",
     "stack_transfer",
     "surface_energy",
+    "SURFACE_IOR",
     "SURFACE_ROUGHNESS",
     "THICKNESS_RANGE",
     "Transport",
