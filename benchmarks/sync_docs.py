@@ -23,6 +23,7 @@ GENERATED_BLOCKS = [
     ("fit-photos", "fit_photos.md"),
     ("fit-image-tones", "fit_image_tones.md"),
     ("renderers", "renderers.md"),
+    ("layered-renders", "layered_renders.md"),
     ("forward-model", "forward_model.md"),
     ("fit-image", "fit_image.md"),
     ("transport-fit", "transport_fit.md"),
