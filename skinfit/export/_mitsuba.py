@@ -239,8 +239,7 @@ def render_albedo(material: dict, *, spp: int = 4096, resolution: int = 4, seed:
     (``mitsuba_material`` of an RGB medium) in the reference slab; the error is the spread over
     the ``resolution``^2 independent pixels."""
     mi = _mitsuba(variant)
-    film = {"type": "hdrfilm", "width": resolution, "height": resolution, "rfilter": {"type": "box"}, "pixel_format": "rgb"}
-    scene = mi.load_dict(_slab_scene(mi, material, film, spp=spp, seed=seed, view_mm=1.0))
+    scene = mi.load_dict(_slab_scene(mi, material, rgb_film(resolution), spp=spp, seed=seed, view_mm=1.0))
     pixels = np.asarray(mi.render(scene), dtype=float).reshape(-1, 3) - _specular(material)
     return pixels.mean(axis=0), pixels.std(axis=0, ddof=1) / np.sqrt(len(pixels))
 
@@ -256,6 +255,11 @@ def render_spectral_albedo(material: dict, wavelengths_nm, *, band_nm: float = 2
     scene = _slab_scene(mi, material, spectral_film(lam, band_nm, resolution), spp=spp, seed=seed, view_mm=1.0)
     pixels = render_spectral_bands(mi, scene, lam.size, spp, seed) - _specular(material)
     return pixels.mean(axis=0), pixels.std(axis=0, ddof=1) / np.sqrt(len(pixels))
+
+
+def rgb_film(resolution: int) -> dict:
+    """Mitsuba's RGB film, ``resolution`` pixels square, box filter (independent pixels)."""
+    return {"type": "hdrfilm", "width": resolution, "height": resolution, "rfilter": {"type": "box"}, "pixel_format": "rgb"}
 
 
 def spectral_film(wavelengths_nm, band_nm: float, resolution: int) -> dict:
@@ -316,13 +320,20 @@ def render_energy_within(material: dict, radii_mm, *, spp: int = 16384, seed: in
     mi = _mitsuba(variant)
     radii = np.asarray(radii_mm, dtype=float)
     size = float(np.clip(80.0 * diffusion_length_mm(material["interior"]), 10.0, SLAB_WIDTH_MM))
-    film = {"type": "hdrfilm", "width": 4, "height": 4, "rfilter": {"type": "box"}, "pixel_format": "rgb"}
     energy, error = [], []
     for r in radii:
-        gap = max(gap_fraction * float(r), 1.5e-5 * size)
-        scene = _slab_scene(mi, material, film, spp=spp, seed=seed, view_mm=min(1e-3, float(r) * 1e-2), width_mm=size, depth_mm=size / 2,
-                            extra={"screen": _annulus(mi, float(r), size, gap)})
+        scene = screened_scene(mi, material, rgb_film(4), float(r), size, spp=spp, seed=seed, gap_fraction=gap_fraction)
         pixels = np.asarray(mi.render(mi.load_dict(scene)), dtype=float).reshape(-1, 3) - _specular(material)
         energy.append(pixels.mean(axis=0))
         error.append(pixels.std(axis=0, ddof=1) / np.sqrt(len(pixels)))
     return np.array(energy), np.array(error)
+
+
+def screened_scene(mi, material: dict | None, film: dict, radius_mm: float, size_mm: float, *, spp: int, seed: int,
+                   gap_fraction: float = 1e-2, shapes: dict | None = None, rr_depth: int = 200) -> dict:
+    """The radial check's scene for one radius (``render_energy_within``): the slab ``size_mm``
+    wide and half as deep (``material``'s cube, or ``shapes``), the black screen with a hole of
+    ``radius_mm`` a gap above it, and the camera over 1e-3 mm (at most r / 100) at the centre."""
+    gap = max(gap_fraction * radius_mm, 1.5e-5 * size_mm)
+    return _slab_scene(mi, material, film, spp=spp, seed=seed, view_mm=min(1e-3, radius_mm * 1e-2), width_mm=size_mm,
+                       depth_mm=size_mm / 2, rr_depth=rr_depth, extra={**(shapes or {}), "screen": _annulus(mi, radius_mm, size_mm, gap)})

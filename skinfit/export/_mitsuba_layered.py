@@ -29,13 +29,14 @@ from .._validate import SkinfitInputError
 from ..model import SURFACE_IOR, SURFACE_ROUGHNESS
 from ._layered import LayeredMedium
 from ._mitsuba import (
-    _annulus,
     _mitsuba,
     _phase,
     _phase_xml,
     _slab_scene,
     _xml_value,
     render_spectral_bands,
+    rgb_film,
+    screened_scene,
     spectral_film,
     spectrum_value,
 )
@@ -144,7 +145,12 @@ def _film(layered: LayeredMedium, resolution: int, band_nm: float) -> dict:
         if layered.wavelengths_nm.size > 16:
             raise SkinfitInputError("a spectral render check takes at most 16 wavelengths: export fewer for it")
         return spectral_film(layered.wavelengths_nm, band_nm, resolution)
-    return {"type": "hdrfilm", "width": resolution, "height": resolution, "rfilter": {"type": "box"}, "pixel_format": "rgb"}
+    return rgb_film(resolution)
+
+
+def _patch_mm(layered: LayeredMedium) -> float:
+    """The checks' patch size: 80 diffusion lengths of the dermis, within 10-400 mm."""
+    return float(np.clip(80.0 * layered.diffusion_length_mm(), 10.0, 400.0))
 
 
 def _render(mi, layered: LayeredMedium, scene: dict, spp: int, seed: int) -> np.ndarray:
@@ -168,7 +174,7 @@ def render_layered_albedo(layered: LayeredMedium, *, spp: int = 4096, resolution
     wide and deep (at least 10 mm); the error from the spread over the pixels."""
     layered = _checked(layered)
     mi = _mitsuba(_variant(layered, variant))
-    size = float(np.clip(80.0 * layered.diffusion_length_mm(), 10.0, 400.0))
+    size = _patch_mm(layered)
     extra = mitsuba_layered_shapes(mi, layered, width_mm=2 * size, depth_mm=size)
     scene = _slab_scene(mi, None, _film(layered, resolution, band_nm), spp=spp, seed=seed, view_mm=1.0, extra=extra,
                         rr_depth=rr_depth)
@@ -183,13 +189,12 @@ def render_layered_energy_within(layered: LayeredMedium, radii_mm, *, spp: int =
     hole of radius r just above the surface, 16 pixels over 1e-3 mm at the centre)."""
     layered = _checked(layered)
     mi = _mitsuba(_variant(layered, variant))
-    size = float(np.clip(80.0 * layered.diffusion_length_mm(), 10.0, 400.0))
+    size = _patch_mm(layered)
+    shapes = mitsuba_layered_shapes(mi, layered, width_mm=size, depth_mm=size / 2)
     energy, error = [], []
     for r in np.asarray(radii_mm, dtype=float):
-        gap = max(gap_fraction * float(r), 1.5e-5 * size)
-        extra = {**mitsuba_layered_shapes(mi, layered, width_mm=size, depth_mm=size / 2), "screen": _annulus(mi, float(r), size, gap)}
-        scene = _slab_scene(mi, None, _film(layered, 4, band_nm), spp=spp, seed=seed, view_mm=min(1e-3, float(r) * 1e-2),
-                            width_mm=size, depth_mm=size / 2, extra=extra, rr_depth=rr_depth)
+        scene = screened_scene(mi, None, _film(layered, 4, band_nm), float(r), size, spp=spp, seed=seed, gap_fraction=gap_fraction,
+                               shapes=shapes, rr_depth=rr_depth)
         pixels = _render(mi, layered, scene, spp, seed)
         energy.append(pixels.mean(axis=0))
         error.append(pixels.std(axis=0, ddof=1) / np.sqrt(len(pixels)))
