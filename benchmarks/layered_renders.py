@@ -70,8 +70,8 @@ def spectral_row(params, spp: int) -> dict:
 
 def markdown(record) -> str:
     rows = record["rgb"]
-    lines = [f"Layered Mitsuba export, {record['provenance']['date']}, {record['provenance']['machine']}, "
-             f"commit {record['provenance']['git_commit'][:12]}; {record['settings']}",
+    lines = [f"Layered Mitsuba export, {record['date']}, {record['machine']}, "
+             f"commit {record['git_commit'][:12]}; {record['settings']}",
              "", "| set | albedo R / G / B, model | Mitsuba / model - 1 (%) | largest radial difference, Mitsuba - Monte Carlo (points) |",
              "|---|---|---|---|"]
     for name, row in rows.items():
@@ -105,19 +105,22 @@ def main(argv=None) -> dict:
     args = parser.parse_args(argv)
     sets = parameter_sets(0 if args.quick else args.random)
     spp, photons = (1024, 50_000) if args.quick else (4096, 200_000)
-    record = {"provenance": provenance(), "settings": f"{spp} samples per pixel (16 pixels; up to 8x for dark channels), "
+    record = {**provenance(), "settings": f"{spp} samples per pixel (16 pixels; up to 8x for dark channels), "
                                                       f"{photons} Monte Carlo photons per channel",
               "rgb": {}}
     started = time.perf_counter()
+    args.out.mkdir(parents=True, exist_ok=True)
+    partial = args.out / "layered_renders.json.partial"  # each finished set kept if a long run stops
     for name, params in sets.items():
         row = rgb_row(params, spp, photons)
         record["rgb"][name] = row
+        partial.write_text(json.dumps(record, indent=1), encoding="utf-8")
         print(f"{name}: albedo {np.round(100 * np.array(row['albedo_relative_difference']), 2)} %, radial "
               f"{np.round(np.max(np.abs(row['radial_difference_points'])), 2)} points ({time.perf_counter() - started:.0f} s)", flush=True)
     record["spectral"] = spectral_row(skinfit.preset("medium"), spp)
     record["seconds"] = time.perf_counter() - started
-    args.out.mkdir(parents=True, exist_ok=True)
     (args.out / "layered_renders.json").write_text(json.dumps(record, indent=1), encoding="utf-8")
+    partial.unlink(missing_ok=True)
     (args.out / "layered_renders.md").write_text(markdown(record), encoding="utf-8")
     print(markdown(record))
     return record
