@@ -3,28 +3,29 @@
     python -m benchmarks.numbers            # writes benchmarks/results/numbers.md, prints the summary
     python -m benchmarks.numbers --orphans  # also prints every number with no source
 
-Each number (a run of digits, with its decimals and exponent) in ``README.md`` and ``docs/*.md`` is
-classified by where it stands:
+The rule the docs follow: **a measured figure's paragraph names the command that measured it**, in
+the prose (``python -m benchmarks.fit_noise``, or ``python -m benchmarks`` for the Pareto and stress
+sweeps), or stands in a block generated from a results file. Nothing else is marked: inputs,
+settings, thresholds, versions and names carry no annotation. Each number (a run of digits, with its
+decimals and exponent) in ``README.md`` and ``docs/*.md`` is classified by where it stands:
 
 - ``generated``: inside a ``<!-- name:start -->`` ... ``<!-- name:end -->`` block, which the tests keep
   equal to its results file (``tests/test_readme.py``);
-- ``sourced``: in a paragraph that names its results files in a ``<!-- source: benchmarks/results/F ... -->``
-  comment, and found in one of them (to the precision shown); a named source that does not hold the
-  number is a ``mismatch``;
+- ``sourced``: in a paragraph that names a benchmark command (or a results file, or a list item under
+  a paragraph that does), and found in the results files that command writes (to the precision
+  shown); a number the named results do not hold is an ``orphan`` "not in" them (a setting beside
+  a measured figure, or a figure that is wrong: the listing is for a maintainer to read);
 - ``code``: in code (commands, examples, inputs), not a result;
 - ``one-off``: in a paragraph marked "One-off observation" with its date: a figure no script
   reproduces, kept as what it is;
-- ``definition``: listed in a ``<!-- defines: 400 700 10 -->`` comment of its paragraph: an input, a
-  setting, a threshold, a bound, a version or a constant of a formula, which the text defines rather
-  than reports (a listed number that the paragraph does not hold is a ``mismatch``: the mark is stale);
+- ``name``: a version or a number in a name ("Python 3.11", "Mitsuba 3", "Table 3");
 - ``reference``: a citation (year, volume, pages, DOI), a figure quoted beside a link to the model notes, or
   a section of the model notes, which carry
   their sources inline (``docs/model-notes.md`` is the model's reference notes);
-- ``orphan``: none of these. A published figure should become generated or sourced, be marked as a
-  one-off observation with its date, or be marked as a definition. The listing names a results file
-  that holds an equal value (to the precision shown, two significant digits or more) as a candidate
-  source: a hint, not an attribution (a results file with thousands of values matches almost
-  anything).
+- ``orphan``: none of these: a definition (an input, a setting, a bound) or a published figure whose
+  paragraph does not say what measured it. The listing names a results file that holds an equal
+  value (to the precision shown, two significant digits or more) as a candidate source: a hint, not
+  an attribution (a results file with thousands of values matches almost anything).
 """
 
 from __future__ import annotations
@@ -37,6 +38,10 @@ from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
 RESULTS = ROOT / "benchmarks" / "results"
+COMMAND = re.compile(r"python -m (benchmarks(?:\.\w+)?)\b")
+RESULTS_PATH = re.compile(r"benchmarks/results/[\w./-]+\.(?:json|csv|md)")
+# a number that is part of a name: after a capitalised word (Mitsuba 3, Table 3, Python 3.11, Blender 4.2.23)
+NAME_BEFORE = re.compile(r"\b[A-Z][A-Za-z]*(?:-v)? $")
 NUMBER = re.compile(r"(?<![\w.])[-+]?\d+(?:[.,]\d+)*(?:\.\d+)?(?:e[-+]?\d+)?(?![\d.,]\d)", re.I)
 CITATION = re.compile(r"(DOI|doi\.org|SIGGRAPH|EGSR|Phys\. Med|Opt\. Lett|Scientific Data|Color Res|Photochem|"
                       r"OMLC|https?://|et al\.|model-notes\.md\)|\(\d{4}\)|\b(19|20)\d{2}\b|\bIEC |\bISO |\bITU)")
@@ -120,14 +125,8 @@ def classify(path: Path, results: dict[str, list[float]]) -> list[tuple[int, str
     model_notes = path.name == "model-notes.md"
     lines = path.read_text().splitlines()
     paragraph = _paragraphs(lines)
-    sources, one_off, defines, first_line = {}, set(), {}, {}
+    sources, one_off = _sources(lines, paragraph, results), set()
     for k, line in enumerate(lines):
-        first_line.setdefault(paragraph[k], k + 1)
-        named = re.search(r"<!-- source: ([^>]+?) -->", line)
-        if named:
-            sources[paragraph[k]] = named.group(1).split()
-        for listed in re.findall(r"<!-- defines: ([^>]+?) -->", line):
-            defines.setdefault(paragraph[k], Counter()).update(listed.split())
         if "one-off" in line.lower():  # "*One-off observation (date, ...)*", possibly broken over lines
             one_off.add(paragraph[k])
     for i, line in enumerate(lines, 1):
@@ -154,19 +153,64 @@ def classify(path: Path, results: dict[str, list[float]]) -> list[tuple[int, str
                 kind, where = "reference", ""
             elif paragraph[i - 1] in one_off:
                 kind, where = "one-off", ""
-            elif defines.get(paragraph[i - 1], Counter())[shown] > 0:
-                defines[paragraph[i - 1]][shown] -= 1  # each listed entry defines one occurrence
-                kind, where = "definition", ""
+            elif _is_name(text, m):
+                kind, where = "name", ""
             elif source:
                 values = [v for name in source for v in results.get(name, [])]
-                kind, where = ("sourced", " ".join(source)) if _holds(values, shown, strict=False) else ("mismatch", " ".join(source))
+                kind, where = ("sourced", " ".join(source)) if _holds(values, shown, strict=False) else \
+                    ("orphan", "not in " + " ".join(source))
             else:
                 holders = [f for f, values in results.items() if _holds(values, shown)]
                 kind, where = "orphan", (f"candidate {holders[0]}" if holders else "")
             found.append((i, shown, kind, where))
-    for index, left in defines.items():  # listed but not in the paragraph: a stale mark
-        found += [(first_line[index], shown, "mismatch", "defines") for shown, n in left.items() for _ in range(n)]
     return found
+
+
+def _is_name(text: str, m: re.Match) -> bool:
+    """A version or a number in a name: an integer or a dotted version right after a capitalised word."""
+    shown = m.group(0)
+    return bool(re.fullmatch(r"\d+|\d+\.\d+(?:\.\d+)?", shown)) and bool(NAME_BEFORE.search(text[:m.start()])) \
+        and not re.match(r"\s*(%|x\b|×|nm|mm|µs|us|ms|s\b)", text[m.end():])
+
+
+def _script_results(command: str, results: dict[str, list[float]]) -> list[str]:
+    """The results files that ``python -m <command>`` writes."""
+    from benchmarks.stale import DEPENDS_ON
+
+    if command == "benchmarks":  # the Pareto and stress sweeps
+        return [name for name in results if name.startswith("benchmarks/results/pareto/")]
+    script = command.replace(".", "/") + ".py"
+    return [f"benchmarks/results/{name}" for name, (writer, _) in DEPENDS_ON.items() if writer == script] + \
+        [name for name in results if Path(name).stem == command.split(".")[-1]]
+
+
+def _sources(lines: list[str], paragraph: list[int], results) -> dict[int, list[str]]:
+    """Per paragraph, the results files it names: through the benchmark commands or results paths in its
+    prose (or a ``<!-- source: ... -->`` comment); a list item that names none has those of the paragraph
+    that introduces its list."""
+    named: dict[int, list[str]] = {}
+    for k, line in enumerate(lines):
+        found = [f for c in COMMAND.findall(line) for f in _script_results(c, results)] + RESULTS_PATH.findall(line)
+        comment = re.search(r"<!-- source: ([^>]+?) -->", line)
+        found += comment.group(1).split() if comment else []
+        if found:
+            named.setdefault(paragraph[k], []).extend(f for f in found if f not in named.get(paragraph[k], []))
+    out, lead = {}, []
+    seen = set()
+    for k, line in enumerate(lines):
+        index = paragraph[k]
+        if index in seen or not line.strip():  # a paragraph is read from its first line with text
+            continue
+        seen.add(index)
+        item = re.match(r"^\s*([-*] |\d+\. )", line)
+        if re.match(r"^#", line):
+            lead = []
+        elif not item:
+            lead = named.get(index, [])
+        mine = named.get(index) or (lead if item else [])
+        if mine:
+            out[index] = mine
+    return out
 
 
 def _listing(page, line, shown, kind, where) -> str:
@@ -188,8 +232,8 @@ def main(argv=None) -> int:
         total += counts
         rows.append((page.relative_to(ROOT), counts))
         orphans += [(page.relative_to(ROOT), line, shown, kind, where) for line, shown, kind, where in entries
-                    if kind in ("orphan", "mismatch")]
-    kinds = ("generated", "sourced", "one-off", "definition", "code", "reference", "mismatch", "orphan")
+                    if kind == "orphan"]
+    kinds = ("generated", "sourced", "one-off", "name", "code", "reference", "orphan")
     lines = ["| page | " + " | ".join(kinds) + " |", "|---|" + "---|" * len(kinds)]
     lines += [f"| {page} | " + " | ".join(str(c[k]) for k in kinds) + " |" for page, c in rows]
     lines += ["| all | " + " | ".join(str(total[k]) for k in kinds) + " |"]

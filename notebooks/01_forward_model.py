@@ -32,8 +32,10 @@ from skinfit.colorimetry import linear_srgb_weights, spectrum_to_srgb
 from skinfit.io import read_nist
 from skinfit.model import profile
 
-HERE = Path.cwd() if "__file__" not in globals() else Path(__file__).resolve().parent
-DATA = HERE.parent / "data"
+# the repository: from notebooks/ in Jupyter, docs/notebooks/ in the site build, or run as a script
+HERE = Path(__file__).resolve().parent if "__file__" in globals() else Path.cwd()
+ROOT = next(p for p in [HERE, *HERE.parents] if (p / "pyproject.toml").is_file())
+DATA = ROOT / "data"
 DJ2006 = skinfit.SkinModel.dj2006()
 
 # %% [markdown]

@@ -28,8 +28,10 @@ import skinfit
 from skinfit.fit import VARIABLES
 from skinfit.io import read_nist
 
-HERE = Path.cwd() if "__file__" not in globals() else Path(__file__).resolve().parent
-nist = read_nist(HERE.parent / "data" / "nist_skin_reflectance_250-1000nm.csv")
+# the repository: from notebooks/ in Jupyter, docs/notebooks/ in the site build, or run as a script
+HERE = Path(__file__).resolve().parent if "__file__" in globals() else Path.cwd()
+ROOT = next(p for p in [HERE, *HERE.parents] if (p / "pyproject.toml").is_file())
+nist = read_nist(ROOT / "data" / "nist_skin_reflectance_250-1000nm.csv")
 wl = np.arange(400.0, 701.0, 10.0)
 average = np.stack([np.interp(wl, nist.wavelengths_nm, s) for s in nist.average])
 repeats = np.stack([[np.interp(wl, nist.wavelengths_nm, r) for r in subject] for subject in nist.repeats])

@@ -43,8 +43,10 @@ from skinfit.colorimetry import srgb_encode
 from skinfit.io import read_linear_rgb
 from skinfit.segmentation import FaceRegion
 
-HERE = Path.cwd() if "__file__" not in globals() else Path(__file__).resolve().parent
-PHOTO = HERE.parent / "data" / "astronaut_eileen_collins.png"
+# the repository: from notebooks/ in Jupyter, docs/notebooks/ in the site build, or run as a script
+HERE = Path(__file__).resolve().parent if "__file__" in globals() else Path.cwd()
+ROOT = next(p for p in [HERE, *HERE.parents] if (p / "pyproject.toml").is_file())
+PHOTO = ROOT / "data" / "astronaut_eileen_collins.png"
 photo, _ = read_linear_rgb(PHOTO)  # 8-bit sRGB through its embedded ICC profile, to linear
 fit = skinfit.fit_image(PHOTO, progress=False)
 print(fit.summary())
@@ -106,7 +108,7 @@ axes[1, 3].set_title("blush: haemoglobin x 2")
 for ax in axes.ravel():
     ax.axis("off")
 fig.tight_layout()
-fig.savefig("03_fit_photo_maps.png", dpi=100)
+plt.show()
 
 # %% [markdown]
 # ## An albedo capture
@@ -116,7 +118,7 @@ fig.savefig("03_fit_photo_maps.png", dpi=100)
 # camera prior. Where the balance is known (a calibrated capture in linear sRGB), `white_balance="none"`.
 
 # %%
-capture = HERE.parent / "tests" / "data" / "face2_albedo_quarter.png"
+capture = ROOT / "tests" / "data" / "face2_albedo_quarter.png"
 albedo_fit = skinfit.fit_image(capture, progress=False)
 albedo_skin = albedo_fit.region == FaceRegion.SKIN
 print(f"{albedo_fit.faces} face; {100 * albedo_fit.skin_mask[albedo_skin].mean():.1f} % of its skin fitted, "

@@ -58,7 +58,7 @@ for ax, (name, r) in zip(axes, results.items()):
 axes[0].set_ylabel("r R(r) (mm^-1)")
 axes[0].legend(fontsize=8)
 fig.tight_layout()
-fig.savefig("04_profiles_for_renderers.png", dpi=100)
+plt.show()
 
 # %% [markdown]
 # ## Media for path tracers

@@ -31,8 +31,9 @@ import numpy as np
 import skinfit
 from skinfit.fit import prior_table
 
-HERE = Path.cwd() if "__file__" not in globals() else Path(__file__).resolve().parent
-ROOT = HERE.parent
+# the repository: from notebooks/ in Jupyter, docs/notebooks/ in the site build, or run as a script
+HERE = Path(__file__).resolve().parent if "__file__" in globals() else Path.cwd()
+ROOT = next(p for p in [HERE, *HERE.parents] if (p / "pyproject.toml").is_file())
 record = json.loads((ROOT / "benchmarks" / "results" / "calibration.json").read_text())
 report = record["report"]
 model = skinfit.SkinModel.calibrated()

@@ -82,24 +82,28 @@ def test_realistic_fit_benchmark_writes_its_rows(tmp_path):
 def test_the_numbers_census_attributes_what_it_can_and_lists_the_rest(tmp_path):
     from benchmarks import numbers
 
-    results = {"benchmarks/results/x.json": [0.9916, 12.34]}
+    results = {"benchmarks/results/fit_noise.json": [0.9916, 12.34], "benchmarks/results/x.json": [4.25]}
     page = tmp_path / "page.md"
     page.write_text(
         "<!-- t:start -->\n| a | 7.25 |\n<!-- t:end -->\n\n"
-        "Fits took 12.3 s and reached 99.2 %. <!-- source: benchmarks/results/x.json -->\n\n"
-        "A claim of 0.52 with no source.\n\n"
+        "Fits took 12.3 s and reached 99.2 % (`python -m benchmarks.fit_noise`).\n\n"
+        "A claim of 0.52 with no source, in Mitsuba 3 and Python 3.11.\n\n"
         "`skinfit demo --radii 0.001:20:256`\n\n"
-        "Named but wrong: 4.56 <!-- source: benchmarks/results/x.json -->\n\n"
-        "Spectra at 400-700 nm reached 12.34 in a candidate file. <!-- defines: 400 700 9 -->\n"
+        "Measured by `python -m benchmarks.fit_noise`, but wrong: 4.56.\n\n"
+        "What the noise sweep found (`python -m benchmarks.fit_noise`):\n\n"
+        "- a list item under it: 0.992\n\n"
+        "Unrelated paragraph.\n\n"
+        "- a list item under no command: 4.25, 12.34 by chance\n"
     )
-    got = {(shown, kind) for _, shown, kind, _ in numbers.classify(page, results)}
-    assert ("7.25", "generated") in got and ("12.3", "sourced") in got and ("99.2", "sourced") in got
-    assert ("0.52", "orphan") in got and ("4.56", "mismatch") in got and ("0.001:20:256", "code") not in got
-    assert ("400", "definition") in got and ("700", "definition") in got
-    # an equal value in some results file is a hint, not an attribution; a listed number the
-    # paragraph does not hold is a stale mark
-    assert ("12.34", "orphan") in got and ("9", "mismatch") in got
-    assert all(kind == "code" for shown, kind in got if shown in ("0.001", "20", "256"))
+    got = {(shown, kind, where) for _, shown, kind, where in numbers.classify(page, results)}
+    kinds = {(shown, kind) for shown, kind, _ in got}
+    assert ("7.25", "generated") in kinds and ("12.3", "sourced") in kinds and ("99.2", "sourced") in kinds
+    assert ("0.52", "orphan") in kinds and ("3", "name") in kinds and ("3.11", "name") in kinds
+    assert ("4.56", "orphan", "not in benchmarks/results/fit_noise.json") in got  # the named results do not hold it
+    assert ("0.992", "sourced") in kinds  # a list item inherits the command of the paragraph that opens its list
+    # an equal value in some results file is a hint, not an attribution
+    assert ("4.25", "orphan", "candidate benchmarks/results/x.json") in got and ("12.34", "orphan") in kinds
+    assert all(kind == "code" for shown, kind in kinds if shown in ("0.001", "20", "256"))
 
 
 @pytest.mark.slow
