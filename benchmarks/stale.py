@@ -27,6 +27,7 @@ DEPENDS_ON = {
     "calibration_check.json": ("benchmarks/calibrate_model.py", ["skinfit/model", "skinfit/fit"]),
     "calibration_methods.json": ("benchmarks/calibrate_model.py", ["skinfit/model", "skinfit/fit"]),
     "capture_skin_rule.json": ("benchmarks/capture_skin_rule.py", ["skinfit/model", "skinfit/fit", "skinfit/colorimetry", "skinfit/io"]),
+    "face_blur.json": ("benchmarks/face_blur.py", ["skinfit/model", "skinfit/fit", "skinfit/colorimetry", "skinfit/export/_blur.py"]),
     "fit_image.json": ("benchmarks/fit_image.py", ["skinfit/fit", "skinfit/colorimetry"]),
     "fit_image_tones.json": ("benchmarks/fit_image_tones.py", ["skinfit/model", "skinfit/fit", "skinfit/colorimetry"]),
     "fit_image_box.json": ("benchmarks/fit_image_box.py", ["skinfit/model", "skinfit/fit", "skinfit/colorimetry"]),

@@ -24,6 +24,7 @@ GENERATED_BLOCKS = [
     ("fit-image-tones", "fit_image_tones.md"),
     ("renderers", "renderers.md"),
     ("layered-renders", "layered_renders.md"),
+    ("face-blur", "face_blur.md"),
     ("forward-model", "forward_model.md"),
     ("fit-image", "fit_image.md"),
     ("transport-fit", "transport_fit.md"),

@@ -2,6 +2,7 @@
 transport (``RendererMedium``), and the renderer formats (pbrt-v4, Mitsuba 3, Blender Cycles, textures).
 """
 
+from ._blur import blur_albedo, deconvolve_albedo, profile_kernel
 from ._layered import LAYERED_WAVELENGTHS_NM, LayeredMedium, layered_medium
 from ._media import (
     DEFAULT_CONVENTIONS,
@@ -39,6 +40,7 @@ from ._mitsuba_layered import (
     render_layered_albedo,
     render_layered_energy_within,
 )
+from ._mitsuba_textures import render_textures, textures_depth_mm
 from ._profile_tables import ProfileTable, profile_table, read_exr_table, write_table
 from ._renderers import (
     CHANNELS,
@@ -61,6 +63,11 @@ from ._renderers import (
 )
 
 __all__ = [
+    "blur_albedo",
+    "deconvolve_albedo",
+    "profile_kernel",
+    "render_textures",
+    "textures_depth_mm",
     "render_layered_energy_within",
     "render_layered_albedo",
     "mitsuba_layered_xml",
