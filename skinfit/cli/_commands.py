@@ -12,10 +12,12 @@ from .._validate import SkinfitInputError
 from ..colorimetry import render_maps, spectrum_to_srgb, srgb_encode
 from ..export import (
     layered_medium,
+    layered_textures,
     mitsuba_layered_xml,
     profile_table,
     renderer_profiles,
     renderer_textures,
+    write_mitsuba_layered_textures,
     write_mitsuba_textures,
     write_renderer,
     write_table,
@@ -142,6 +144,12 @@ def cmd_textures(args) -> int:
     print(f"wrote {args.out}: albedo, sigma_t, ss_albedo, mfp, base_colour and blender_radius .R/G/B")
     if args.mitsuba:
         print(f"wrote {write_mitsuba_textures(textures, args.mitsuba)} with sigma_t.vol and albedo.vol")
+    if args.mitsuba_layered:
+        if args.mm_per_pixel is None:
+            raise SkinfitInputError("--mitsuba-layered lays the maps over a patch: give its pixel size with --mm-per-pixel")
+        layered = layered_textures(channels, illuminant=args.illuminant, model=model_from(args), progress=True)
+        path = write_mitsuba_layered_textures(layered, args.mitsuba_layered, mm_per_pixel=args.mm_per_pixel)
+        print(f"wrote {path} with the epidermis' and dermis' sigma_t and albedo grids")
     return 0
 
 

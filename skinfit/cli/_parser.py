@@ -148,6 +148,10 @@ def build_parser() -> argparse.ArgumentParser:
     textures.add_argument("--out", required=True, help="EXR to write")
     textures.add_argument("--mitsuba", metavar="DIR", default=None,
                           help="also write Mitsuba 3 volume grids (sigma_t.vol, albedo.vol) and skin_medium.xml to DIR")
+    textures.add_argument("--mitsuba-layered", metavar="DIR", default=None,
+                          help="also write the model's two layers per texel as Mitsuba 3 grids and skin_layers.xml to DIR "
+                               "(needs --mm-per-pixel)")
+    textures.add_argument("--mm-per-pixel", type=float, default=None, help="the maps' pixel size on the skin, mm (for --mitsuba-layered)")
     textures.add_argument("--illuminant", default="D65")
     add_model_choice(textures)
     textures.set_defaults(run=cmd_textures)

@@ -4,6 +4,7 @@ transport (``RendererMedium``), and the renderer formats (pbrt-v4, Mitsuba 3, Bl
 
 from ._blur import blur_albedo, deconvolve_albedo, profile_kernel
 from ._layered import LAYERED_WAVELENGTHS_NM, LayeredMedium, layered_medium
+from ._layered_textures import LayeredTextures, layered_textures, mitsuba_layered_texture_shapes, write_mitsuba_layered_textures
 from ._media import (
     DEFAULT_CONVENTIONS,
     MEDIAN_PHOTONS,
@@ -63,6 +64,10 @@ from ._renderers import (
 )
 
 __all__ = [
+    "LayeredTextures",
+    "layered_textures",
+    "mitsuba_layered_texture_shapes",
+    "write_mitsuba_layered_textures",
     "blur_albedo",
     "deconvolve_albedo",
     "profile_kernel",

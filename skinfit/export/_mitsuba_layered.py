@@ -104,6 +104,24 @@ def mitsuba_layered_shapes(mi, layered: LayeredMedium, *, width_mm: float, depth
     }
 
 
+def _dielectric_xml(bsdf: dict, attributes: str = "") -> str:
+    rough = (f'<string name="distribution" value="{bsdf["distribution"]}"/><float name="alpha" value="{bsdf["alpha"]:g}"/>'
+             if "alpha" in bsdf else "")
+    return (f'<bsdf type="{bsdf["type"]}"{attributes}>{rough}<float name="int_ior" value="{bsdf["int_ior"]:g}"/>'
+            f'<float name="ext_ior" value="{bsdf["ext_ior"]:g}"/></bsdf>')
+
+
+def surface_xml(surface: dict) -> list[str]:
+    """XML lines of the stack's BSDFs: ``skin_surface`` (``mitsuba_layered_surface``'s dielectric,
+    or its blend with the rough oil lobe) and the ``null`` ``skin_interface``."""
+    if surface["type"] == "blendbsdf":
+        lines = [f'<bsdf type="blendbsdf" id="skin_surface"><float name="weight" value="{surface["weight"]:g}"/>',
+                 f'    {_dielectric_xml(surface["bsdf_0"])}', f'    {_dielectric_xml(surface["bsdf_1"])}', "</bsdf>"]
+    else:
+        lines = [_dielectric_xml(surface, ' id="skin_surface"')]
+    return lines + ['<bsdf type="null" id="skin_interface"/>']
+
+
 def mitsuba_layered_xml(layered: LayeredMedium, *, mm_per_scene_unit: float = 1.0, comment: str = "") -> str:
     """An XML fragment (Mitsuba 3 scene format): media ``epidermis`` and ``dermis``, the surface BSDF
     ``skin_surface`` and the interface BSDF ``skin_interface``, with how to use them in comments."""
@@ -115,16 +133,7 @@ def mitsuba_layered_xml(layered: LayeredMedium, *, mm_per_scene_unit: float = 1.
              "<ref name=\"interior\" id=\"dermis\"/> <ref name=\"exterior\" id=\"epidermis\"/>; the volpathmis integrator "
              "(spectral MIS: the channels' sigma_t differ), max_depth -1, rr_depth 5000 or more (g 0.8 takes thousands of bounces; from depth 200 the red renders 8 % dark)"]
     lines = [f"<!-- {line.replace('--', '- -')} -->" for line in notes if line.strip()]
-    surface = mitsuba_layered_surface(layered)
-    dielectric = lambda b, bid="": (f'<bsdf type="{b["type"]}"{bid}>' + (  # noqa: E731
-        f'<string name="distribution" value="{b["distribution"]}"/><float name="alpha" value="{b["alpha"]:g}"/>' if "alpha" in b else "")
-        + f'<float name="int_ior" value="{b["int_ior"]:g}"/><float name="ext_ior" value="{b["ext_ior"]:g}"/></bsdf>')
-    if surface["type"] == "blendbsdf":
-        lines += [f'<bsdf type="blendbsdf" id="skin_surface"><float name="weight" value="{surface["weight"]:g}"/>',
-                  f'    {dielectric(surface["bsdf_0"])}', f'    {dielectric(surface["bsdf_1"])}', "</bsdf>"]
-    else:
-        lines.append(dielectric(surface, ' id="skin_surface"'))
-    lines.append('<bsdf type="null" id="skin_interface"/>')
+    lines += surface_xml(mitsuba_layered_surface(layered))
     for name, medium in media.items():
         lines += [f'<medium type="homogeneous" id={quoteattr(name)}>',
                   *(f"    {_xml_value(key, medium[key])}" for key in ("albedo", "sigma_t", "scale")),

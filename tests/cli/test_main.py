@@ -175,6 +175,13 @@ def test_profiles_for_renderers_and_textures(tmp_path, capsys):
     assert np.all(channels["ss_albedo.R"] > channels["ss_albedo.B"])  # red is absorbed least
     assert main(["textures", str(maps), "--out", str(tmp_path / "tex2.exr"), "--mitsuba", str(tmp_path / "mitsuba")]) == 0
     assert {p.name for p in (tmp_path / "mitsuba").iterdir()} == {"sigma_t.vol", "albedo.vol", "skin_medium.xml"}
+    assert main(["textures", str(maps), "--out", str(tmp_path / "tex3.exr"), "--mitsuba-layered", str(tmp_path / "layers")]) != 0
+    assert "--mm-per-pixel" in capsys.readouterr().err
+    assert main(["textures", str(maps), "--out", str(tmp_path / "tex3.exr"), "--mitsuba-layered", str(tmp_path / "layers"),
+                 "--mm-per-pixel", "0.4"]) == 0
+    assert {p.name for p in (tmp_path / "layers").iterdir()} == {f"{layer}_{grid}.vol" for layer in ("epidermis", "dermis")
+                                                                  for grid in ("sigma_t", "albedo")} | {"skin_layers.xml"}
+    assert "0.4 mm each" in (tmp_path / "layers" / "skin_layers.xml").read_text()
     spectral = tmp_path / "spectral.xml"
     assert main(["profiles", "--preset", "medium", "--format", "mitsuba-spectral", "--out", str(spectral)]) == 0
     assert "360:" in spectral.read_text() and "830:" in spectral.read_text()
