@@ -2,6 +2,9 @@
 
 Run: python -m benchmarks.face_blur [--mm-per-pixel MM] [--out benchmarks/results]
 
+Writes face_blur.json, face_blur.md and a figure, face_blur.png (capture, plain export and
+recommended route as a renderer blurs them, and their CIEDE2000 maps against the capture).
+
 Input: the real cross-polarised albedo capture in ``../shared/data/face-albedo/`` (501 x 798, its
 head mask), fitted with ``fit_image``'s defaults. Its pixel size is not documented: by default
 the mask's widest row above its middle (the head with its ears; below are the shoulders) is taken as
@@ -58,10 +61,47 @@ def _erode(mask: np.ndarray, radius: int) -> np.ndarray:
     return out
 
 
-def _delta_e(a: np.ndarray, b: np.ndarray, where: np.ndarray, gains) -> dict:
+def _delta_e_map(a: np.ndarray, b: np.ndarray, where: np.ndarray, gains) -> np.ndarray:
+    """CIEDE2000 (h, w) between two linear-RGB images in the capture's units (gains divided out), NaN off ``where``."""
     lab = lambda rgb: np.asarray(linear_srgb_to_lab(np.maximum(rgb[where] / np.asarray(gains), 0.0)))  # noqa: E731
-    d = np.asarray(delta_e2000(lab(a), lab(b)))
+    out = np.full(where.shape, np.nan)
+    out[where] = np.asarray(delta_e2000(lab(a), lab(b)))
+    return out
+
+
+def _delta_e(a: np.ndarray, b: np.ndarray, where: np.ndarray, gains) -> dict:
+    d = _delta_e_map(a, b, where, gains)[where]
     return {"median": float(np.median(d)), "p95": float(np.percentile(d, 95)), "pixels": int(d.size)}
+
+
+def figure(path: Path, capture, plain, recommended, where, gains) -> None:
+    """Capture, plain export blurred, recommended route blurred (sRGB), and the CIEDE2000 maps."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    from skinfit.colorimetry import srgb_encode
+
+    fig, axes = plt.subplots(2, 3, figsize=(12, 10))
+    images = [("capture", capture), ("plain export, blurred by the renderer", plain), ("deconvolved, refitted, blurred", recommended)]
+    # the skin compared, the rest of each image the capture's
+    for ax, (title, image) in zip(axes[0], images):
+        shown = np.where(where[..., None], image, capture)  # off the compared skin: the capture
+        ax.imshow(np.clip(np.asarray(srgb_encode(np.clip(shown / np.asarray(gains), 0, 1))), 0, 1))
+        ax.set_title(title)
+    axes[1, 0].imshow(where, cmap="gray")
+    axes[1, 0].set_title("skin pixels compared")
+    for ax, (title, image) in zip(axes[1, 1:], images[1:]):
+        colours = plt.get_cmap("magma").copy()
+        colours.set_bad("0.6")  # not compared: grey
+        shown = ax.imshow(_delta_e_map(image, capture, where, gains), vmin=0, vmax=3, cmap=colours)
+        ax.set_title("CIEDE2000 against the capture")
+    fig.colorbar(shown, ax=axes[1, 1:], shrink=0.7)
+    for ax in axes.ravel():
+        ax.axis("off")
+    fig.savefig(path, dpi=80)
+    plt.close(fig)
 
 
 def main(argv=None) -> dict:
@@ -111,6 +151,7 @@ def main(argv=None) -> dict:
     args.out.mkdir(parents=True, exist_ok=True)
     (args.out / "face_blur.json").write_text(json.dumps(record, indent=1), encoding="utf-8")
     (args.out / "face_blur.md").write_text(markdown(record), encoding="utf-8")
+    figure(args.out / "face_blur.png", capture, plain, recommended, inner, gains)
     print(markdown(record))
     return record
 
