@@ -40,6 +40,8 @@ from ._fresnel import fresnel_reflectance
 
 STREAMS = 16
 _FINITE_DOUBLINGS = 12
+#: A finite layer deeper than this many diffusion decay lengths is treated as that deep (opaque).
+_OPAQUE_DEPTHS = 72.0
 _SEMI_INFINITE_START = 2.0**-10
 _SEMI_INFINITE_DOUBLINGS = 36
 
@@ -177,6 +179,12 @@ def stack_reflectance_transport(absorption, reduced_scattering, thickness, aniso
             below = _semi_infinite(gamma_r, gamma_t)
             continue
         depth = extinction[k] * jnp.where(jnp.isfinite(thickness[k]), thickness[k], 1.0) * depth_factor
+        # A layer beyond ~40 of its slowest decay lengths is opaque: nothing crosses it, and the
+        # doubling, which starts from depth 2^-13, needs that start thin. The decay rate per optical
+        # depth is at least min(1, sqrt(3 (1 - a)(1 - a g))) / 1.75; cap the depth at 72 over the
+        # diffusion estimate (its square, floored, keeps gradients finite at a = 1).
+        decay_squared = 3.0 * (1.0 - albedo[k]) * (1.0 - albedo[k] * anisotropy[k])
+        depth = jnp.minimum(depth, _OPAQUE_DEPTHS * jax.lax.rsqrt(jnp.maximum(decay_squared, 1e-12)))
         r, t = _extrapolated(gamma_r, gamma_t, depth, _FINITE_DOUBLINGS)
         below = r if below is None else r + t @ solve_dominant(eye - below @ r, below @ t)
 

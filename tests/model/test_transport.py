@@ -158,3 +158,22 @@ def test_the_table_can_be_loaded_first_inside_a_jit_trace():
     first = np.asarray(inside(0.05))
     again = np.asarray(skinfit.diffuse_reflectance(skinfit.SkinParams(0.05, 0.7, 0.01), wl, method="transport", model=DJ2006))
     np.testing.assert_allclose(first, again, rtol=1e-12)
+
+
+def test_an_opaque_epidermis_reflects_its_single_scattering_and_keeps_finite_gradients():
+    # optical depths of 60 to 6e7: the doubling's start stays thin (the layer is capped where it is
+    # opaque), so the reflectance follows the single-scattering law R ~ sigma_s / sigma_a instead of
+    # drifting (1e5) or going NaN (1e6), and its gradient is finite; a = 1 (no absorption) too
+    from skinfit.model import stack_reflectance_transport
+
+    def reflectance(absorption, thickness=0.06):
+        return stack_reflectance_transport(jnp.array([absorption, 0.02]), jnp.array([2.0, 2.0]), jnp.array([thickness, 1.0]),
+                                           jnp.array([0.8, 0.8]), ior=1.4, ior_above=1.0, semi_infinite=True)
+
+    values = np.array([float(reflectance(a)) for a in (1e3, 1e4, 1e5, 1e6, 1e9)])
+    assert np.all(np.isfinite(values)) and np.all(values > 0)
+    np.testing.assert_allclose(values[1:] * np.array([1e4, 1e5, 1e6, 1e9]), values[0] * 1e3, rtol=3e-3)
+    for a in (1e4, 1e6, 1e9):
+        assert np.isfinite(float(jax.grad(reflectance)(a)))
+    clear = jax.grad(lambda t: reflectance(0.0, t))
+    assert np.isfinite(float(clear(0.06))) and np.isfinite(float(clear(50.0)))
