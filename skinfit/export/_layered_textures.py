@@ -123,6 +123,16 @@ def _grids(textures: LayeredTextures, mm_per_scene_unit: float) -> dict[str, tup
     return out
 
 
+def _write_grids(textures: LayeredTextures, folder: Path, mm_per_scene_unit: float) -> dict[str, float]:
+    """Write each layer's sigma_t and albedo grids into ``folder``; returns each layer's peak sigma_t (per scene unit)."""
+    peaks = {}
+    for layer, (sigma_t, albedo, peak) in _grids(textures, mm_per_scene_unit).items():
+        write_mitsuba_volume(folder / f"{layer}_sigma_t.vol", sigma_t)
+        write_mitsuba_volume(folder / f"{layer}_albedo.vol", albedo)
+        peaks[layer] = peak
+    return peaks
+
+
 def _placements(textures: LayeredTextures, mm_per_pixel: float, depth_mm: float, mm_per_scene_unit: float):
     """(width, height, epidermis thickness, depth) in scene units and each layer's grid box (origin, size)."""
     h, w = textures.shape
@@ -149,9 +159,7 @@ def mitsuba_layered_texture_shapes(mi, textures: LayeredTextures, folder, *, mm_
     transform = mi.ScalarTransform4f
     width, height, thickness, depth, boxes = _placements(textures, mm_per_pixel, _depth(textures, depth_mm), mm_per_scene_unit)
     entries = {}
-    for layer, (sigma_t, albedo, peak) in _grids(textures, mm_per_scene_unit).items():
-        write_mitsuba_volume(folder / f"{layer}_sigma_t.vol", sigma_t)
-        write_mitsuba_volume(folder / f"{layer}_albedo.vol", albedo)
+    for layer, peak in _write_grids(textures, folder, mm_per_scene_unit).items():
         origin, size = boxes[layer]
         box = transform().translate(origin) @ transform().scale(size)
         entries[layer] = {"type": "heterogeneous", "id": layer, "scale": peak, "phase": _phase(textures.anisotropy),
@@ -159,7 +167,7 @@ def mitsuba_layered_texture_shapes(mi, textures: LayeredTextures, folder, *, mm_
                           "albedo": {"type": "gridvolume", "filename": str(folder / f"{layer}_albedo.vol"), "to_world": box}}
     plane = lambda z: transform().translate([0, 0, z]) @ transform().scale([width / 2, height / 2, 1])  # noqa: E731
     ref = lambda name: {"type": "ref", "id": name}  # noqa: E731
-    surface = mitsuba_layered_surface(_Surface(textures.ior, textures.oil))
+    surface = mitsuba_layered_surface(textures)  # it reads the stack's ior and oil
     return {
         **entries,
         "skin_surface": {"type": "rectangle", "to_world": plane(0.0), "bsdf": surface, "interior": ref(EPIDERMIS)},
@@ -168,12 +176,6 @@ def mitsuba_layered_texture_shapes(mi, textures: LayeredTextures, folder, *, mm_
         "skin_floor": {"type": "rectangle", "to_world": plane(-depth), "bsdf": {"type": "diffuse", "reflectance": 0.0},
                        "exterior": ref(DERMIS)},
     }
-
-
-@dataclasses.dataclass(frozen=True)
-class _Surface:  # what mitsuba_layered_surface reads of a stack
-    ior: float
-    oil: float
 
 
 def _transform_xml(origin, size) -> str:
@@ -203,10 +205,8 @@ def write_mitsuba_layered_textures(textures: LayeredTextures, folder, *, mm_per_
         "use: a rectangle at z = 0 with <ref id=\"skin_surface\"/> <ref name=\"interior\" id=\"epidermis\"/>, one at the epidermis' depth "
         "with <ref id=\"skin_interface\"/> <ref name=\"interior\" id=\"dermis\"/> <ref name=\"exterior\" id=\"epidermis\"/>; "
         "volpathmis, max_depth -1, rr_depth 5000 or more"]]
-    lines += surface_xml(mitsuba_layered_surface(_Surface(textures.ior, textures.oil)))
-    for layer, (sigma_t, albedo, peak) in _grids(textures, mm_per_scene_unit).items():
-        write_mitsuba_volume(folder / f"{layer}_sigma_t.vol", sigma_t)
-        write_mitsuba_volume(folder / f"{layer}_albedo.vol", albedo)
+    lines += surface_xml(mitsuba_layered_surface(textures))
+    for layer, peak in _write_grids(textures, folder, mm_per_scene_unit).items():
         placed = _transform_xml(*boxes[layer])
         lines += [f'<medium type="heterogeneous" id={quoteattr(layer)}>',
                   f'    <volume type="gridvolume" name="albedo"><string name="filename" value="{layer}_albedo.vol"/>{placed}</volume>',
